@@ -1,0 +1,50 @@
+"""Scene readers: TOML scene files, Mitsuba XML, bare mesh files, and catalogue names."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from ...errors import MmwsimError
+from ..scene import Scene
+from .mesh_file import load_mesh_file
+from .mitsuba import load_mitsuba
+from .toml_file import load_toml
+
+__all__ = ["load_scene", "load_toml", "load_mitsuba", "load_mesh_file"]
+
+_MESH_SUFFIXES = {".obj", ".ply", ".glb", ".gltf", ".stl", ".off", ".dae", ".3mf"}
+
+
+def load_scene(source: str | Path | Scene, transmitter: tuple[float, float, float] | None = None) -> Scene:
+    """A scene from a catalogue name (``default``, ``manhattan:seed=3``, ...) or a file.
+
+    Files are read by suffix: ``.toml`` scene files, ``.xml`` Mitsuba scenes, any
+    mesh format trimesh reads. A :class:`Scene` is returned as it is.
+
+    Parameters
+    ----------
+    source : str, path-like or Scene
+    transmitter : (3,) float, optional
+        Overrides the scene's transmitter position, metres.
+    """
+    if isinstance(source, Scene):
+        return source
+    text = str(source)
+    path = Path(text)
+    suffix = path.suffix.lower()
+    if path.exists() or suffix in {".toml", ".xml"} | _MESH_SUFFIXES:
+        if path.is_dir():
+            candidates = sorted(path.glob("*.toml")) or sorted(path.glob("*.xml"))
+            if not candidates:
+                raise MmwsimError(f"{path}: folder holds no .toml or .xml scene file")
+            path, suffix = candidates[0], candidates[0].suffix.lower()
+        if suffix == ".toml":
+            return load_toml(path, transmitter)
+        if suffix == ".xml":
+            return load_mitsuba(path, transmitter)
+        if not path.exists():
+            raise MmwsimError(f"{path}: file not found")
+        return load_mesh_file(path, transmitter=transmitter)
+    catalogue = importlib.import_module("scenes")
+    return catalogue.load(text, transmitter=transmitter)

@@ -1,0 +1,117 @@
+"""The parts of a scene: named meshes with materials, the transmitter, the receiver grid."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import trimesh
+
+from ..materials import Material
+
+__all__ = ["ObjectKind", "SceneObject", "Transmitter", "ReceiverGrid"]
+
+ObjectKind = Literal["building", "ground", "other"]
+OBJECT_KINDS: tuple[str, ...] = ("building", "ground", "other")
+
+
+@dataclass
+class SceneObject:
+    """A named triangle mesh with one radio material.
+
+    Parameters
+    ----------
+    name : str
+        Unique within its scene; path results name reflecting objects by it.
+    mesh : trimesh.Trimesh
+        Triangles in scene coordinates (metres, z up).
+    material : Material
+        Radio material of every face.
+    kind : {"building", "ground", "other"}
+        Buildings block the outdoors query, the footprints and collision; ground
+        and others only reflect and block rays.
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    material: Material
+    kind: ObjectKind = "building"
+
+
+@dataclass(frozen=True)
+class Transmitter:
+    """The base station.
+
+    Parameters
+    ----------
+    position : (3,) float
+        Phase centre, metres.
+    power_dbm : float
+        Transmit power, dBm.
+    """
+
+    position: tuple[float, float, float]
+    power_dbm: float = 30.0
+
+    @property
+    def array(self) -> np.ndarray:
+        """Position as a (3,) float64 array."""
+        return np.asarray(self.position, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class ReceiverGrid:
+    """A regular horizontal grid of receivers, x index running fastest.
+
+    Parameters
+    ----------
+    origin : (2,) float
+        x, y of the first point, metres.
+    spacing : float
+        Distance between neighbours, metres.
+    shape : (2,) int
+        Number of points along x and along y.
+    height : float
+        z of every point, metres.
+    """
+
+    origin: tuple[float, float] = (0.0, 0.0)
+    spacing: float = 1.0
+    shape: tuple[int, int] = (401, 401)
+    height: float = 1.5
+
+    @property
+    def size(self) -> int:
+        """Number of receivers."""
+        return int(self.shape[0] * self.shape[1])
+
+    @property
+    def xs(self) -> np.ndarray:
+        """(nx,) float64 x coordinates."""
+        return self.origin[0] + self.spacing * np.arange(self.shape[0])
+
+    @property
+    def ys(self) -> np.ndarray:
+        """(ny,) float64 y coordinates."""
+        return self.origin[1] + self.spacing * np.arange(self.shape[1])
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 2) float64 [[xmin, ymin], [xmax, ymax]]."""
+        return np.array(
+            [[self.xs[0], self.ys[0]], [self.xs[-1], self.ys[-1]]], dtype=np.float64
+        )
+
+    def positions(self) -> np.ndarray:
+        """(n, 3) float64 receiver positions, index = ix + nx * iy."""
+        gx, gy = np.meshgrid(self.xs, self.ys, indexing="xy")
+        return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, float(self.height))])
+
+    def with_spacing(self, spacing: float) -> ReceiverGrid:
+        """The same area covered at another spacing (the far edge kept where it falls on the grid)."""
+        span = (np.asarray(self.shape) - 1) * self.spacing
+        shape = tuple(int(s) for s in np.floor(span / spacing + 1e-9).astype(int) + 1)
+        return ReceiverGrid(self.origin, float(spacing), shape, self.height)
+
+

@@ -1,0 +1,1 @@
+"""planning package (see DESIGN.md)."""

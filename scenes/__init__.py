@@ -1,0 +1,103 @@
+"""The scene catalogue: the embedded default scene, procedural cities and canonical test scenes.
+
+Load by name with :func:`load`; a name may carry parameters, e.g.
+``manhattan:seed=3,median_height=30`` or ``ground_wall:distance=15``.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from typing import Any
+
+from mmwsim.errors import MmwsimError
+from mmwsim.scene import Scene, load_toml
+
+from .canonical import corner_reflector, free_space, ground_only, ground_wall, street_canyon
+from .downtown import downtown_buildings, write_default
+from .manhattan import manhattan_city
+
+__all__ = [
+    "CATALOGUE",
+    "corner_reflector",
+    "default_scene_path",
+    "downtown_buildings",
+    "free_space",
+    "ground_only",
+    "ground_wall",
+    "load",
+    "manhattan_city",
+    "names",
+    "street_canyon",
+    "write_default",
+]
+
+
+def default_scene_path():
+    """Path of the shipped ``scene.toml`` of the default scene."""
+    return resources.files("scenes") / "default" / "scene.toml"
+
+
+def _default(**kw: Any) -> Scene:
+    if kw:
+        raise MmwsimError(f"scene 'default' takes no parameters, got {', '.join(kw)}")
+    return load_toml(default_scene_path())
+
+
+CATALOGUE = {
+    "default": _default,
+    "manhattan": manhattan_city,
+    "free_space": free_space,
+    "ground_only": ground_only,
+    "ground_wall": ground_wall,
+    "street_canyon": street_canyon,
+    "corner_reflector": corner_reflector,
+}
+
+
+def names() -> list[str]:
+    """Names of the catalogue's scenes."""
+    return list(CATALOGUE)
+
+
+def _parse_value(text: str) -> Any:
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def load(name: str, transmitter: tuple[float, float, float] | None = None) -> Scene:
+    """A catalogue scene by name, with optional ``:key=value,...`` parameters.
+
+    Parameters
+    ----------
+    name : str
+        e.g. ``default``, ``manhattan:seed=3``.
+    transmitter : (3,) float, optional
+        Overrides the scene's transmitter position, metres.
+    """
+    base, _, params = name.partition(":")
+    if base not in CATALOGUE:
+        raise MmwsimError(
+            f"unknown scene {name!r}: not a file, and not in the catalogue ({', '.join(names())})"
+        )
+    kwargs: dict[str, Any] = {}
+    for item in filter(None, params.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise MmwsimError(f"scene {name!r}: parameter {item!r} is not key=value")
+        kwargs[key.strip()] = _parse_value(value.strip())
+    if transmitter is not None and base != "default":
+        kwargs["tx"] = tuple(float(v) for v in transmitter)
+    try:
+        scene = CATALOGUE[base](**kwargs)
+    except TypeError as e:
+        raise MmwsimError(f"scene {name!r}: {e}") from None
+    if transmitter is not None and base == "default":
+        from mmwsim.scene import Transmitter
+
+        scene.check_transmitter(transmitter)
+        scene.transmitter = Transmitter(tuple(float(v) for v in transmitter), scene.transmitter.power_dbm)
+    return scene

@@ -191,9 +191,7 @@ def get_material(name: str, thickness: float | None = None) -> Material:
     try:
         mat = ITU_MATERIALS[key]
     except KeyError:
-        raise MmwsimError(
-            f"unknown material {name!r}; known: {', '.join(material_names())}"
-        ) from None
+        raise MmwsimError(f"unknown material {name!r}; known: {', '.join(material_names())}") from None
     return mat.with_thickness(thickness) if thickness is not None else mat
 
 

@@ -119,11 +119,20 @@ def blueprint(families: tuple[str, ...] | list[str] = ("world",)) -> rrb.Bluepri
         raise ValueError(f"unknown recording families {sorted(unknown)}")
     tabs: list[Any] = []
     if "world" in families:
-        tabs.append(rrb.Spatial3DView(name="Scene and rays", origin=Entity.WORLD, contents=["world/**", "- world/coverage/**"]))
+        tabs.append(
+            rrb.Spatial3DView(
+                name="Scene and rays", origin=Entity.WORLD, contents=["world/**", "- world/coverage/**"]
+            )
+        )
     if "coverage" in families:
         tabs.append(rrb.Spatial2DView(name="Coverage", origin=Entity.COVERAGE))
     if "bff" in families:
-        tabs.append(rrb.Horizontal(rrb.TimeSeriesView(name="PDP", origin=Entity.BFF), rrb.TensorView(name="Fingerprint", origin=Entity.BFF)))
+        tabs.append(
+            rrb.Horizontal(
+                rrb.TimeSeriesView(name="PDP", origin=Entity.BFF),
+                rrb.TensorView(name="Fingerprint", origin=Entity.BFF),
+            )
+        )
     if "trajectories" in families:
         tabs.append(
             rrb.Spatial2DView(name="Trajectories", origin="/", contents=["trajectories/**", "map/**"])
@@ -133,7 +142,9 @@ def blueprint(families: tuple[str, ...] | list[str] = ("world",)) -> rrb.Bluepri
     if "planner" in families:
         tabs.append(
             rrb.Horizontal(
-                rrb.Spatial2DView(name="Planner", origin="/", contents=["planner/**", "- planner/cost/**", "map/**"]),
+                rrb.Spatial2DView(
+                    name="Planner", origin="/", contents=["planner/**", "- planner/cost/**", "map/**"]
+                ),
                 rrb.TimeSeriesView(name="Cost", origin=Entity.PLANNER_COST),
                 column_shares=[3, 1],
             )
@@ -228,8 +239,12 @@ def log_scene(rec: Recording, scene: Scene) -> None:
     outline = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]])
     rec.log(
         Entity.RX_GRID,
-        rr.LineStrips3D([np.column_stack([outline, np.full(5, g.height)])], colors=[(40, 160, 240)], radii=0.3,
-                        labels=[f"{g.shape[0]} x {g.shape[1]} receivers, {g.spacing:g} m"]),
+        rr.LineStrips3D(
+            [np.column_stack([outline, np.full(5, g.height)])],
+            colors=[(40, 160, 240)],
+            radii=0.3,
+            labels=[f"{g.shape[0]} x {g.shape[1]} receivers, {g.spacing:g} m"],
+        ),
         static=True,
     )
     log_footprints(rec, scene)

@@ -64,9 +64,7 @@ def street_canyon(
     return Scene(objects, Transmitter(tx), grid, name="street_canyon", source="street_canyon")
 
 
-def corner_reflector(
-    tx: tuple[float, float, float] = (10.0, 5.0, 10.0), material: str = "metal"
-) -> Scene:
+def corner_reflector(tx: tuple[float, float, float] = (10.0, 5.0, 10.0), material: str = "metal") -> Scene:
     """Two perpendicular 40 m walls meeting at the origin (planes x = 0 and y = 0), no ground."""
     mat = get_material(material)
     objects = [
@@ -75,4 +73,6 @@ def corner_reflector(
     ]
     grid = ReceiverGrid((5.0, 5.0), 5.0, (15, 15), 1.5)
     bounds = np.array([[0.0, 0.0, 0.0], [100.0, 100.0, 40.0]])
-    return Scene(objects, Transmitter(tx), grid, name="corner_reflector", source="corner_reflector", bounds=bounds)
+    return Scene(
+        objects, Transmitter(tx), grid, name="corner_reflector", source="corner_reflector", bounds=bounds
+    )

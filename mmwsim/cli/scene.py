@@ -13,7 +13,9 @@ def register(sub) -> None:
     p = sub.add_parser("scene", help="inspect, export and record scenes")
     ss = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("scene", help="catalogue name (default, manhattan:seed=3, ...) or a .toml/.xml/mesh file")
+    common.add_argument(
+        "scene", help="catalogue name (default, manhattan:seed=3, ...) or a .toml/.xml/mesh file"
+    )
     common.add_argument("--tx", help="transmitter position X,Y,Z in metres (overrides the scene's)")
     show = ss.add_parser("show", parents=[common], help="print a summary")
     show.set_defaults(func=_show)
@@ -58,7 +60,9 @@ def _record(args) -> int:
     from ..recording import Recording, log_scene
 
     scene = _load(args)
-    with Recording(args.rrd, "scene", families=("world",), config={"scene": scene.source or scene.name}) as rec:
+    with Recording(
+        args.rrd, "scene", families=("world",), config={"scene": scene.source or scene.name}
+    ) as rec:
         log_scene(rec, scene)
     print(f"wrote {args.rrd}")
     return 0

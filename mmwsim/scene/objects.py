@@ -99,9 +99,7 @@ class ReceiverGrid:
     @property
     def bounds(self) -> np.ndarray:
         """(2, 2) float64 [[xmin, ymin], [xmax, ymax]]."""
-        return np.array(
-            [[self.xs[0], self.ys[0]], [self.xs[-1], self.ys[-1]]], dtype=np.float64
-        )
+        return np.array([[self.xs[0], self.ys[0]], [self.xs[-1], self.ys[-1]]], dtype=np.float64)
 
     def positions(self) -> np.ndarray:
         """(n, 3) float64 receiver positions, index = ix + nx * iy."""
@@ -113,5 +111,3 @@ class ReceiverGrid:
         span = (np.asarray(self.shape) - 1) * self.spacing
         shape = tuple(int(s) for s in np.floor(span / spacing + 1e-9).astype(int) + 1)
         return ReceiverGrid(self.origin, float(spacing), shape, self.height)
-
-

@@ -18,9 +18,7 @@ __all__ = ["Scene"]
 
 # Directions of the rays that vote on "inside a building": up, and two tilted ones
 # so that a ray grazing an edge cannot decide alone.
-_VOTE_DIRECTIONS = np.array(
-    [[0.0, 0.0, 1.0], [0.5, 0.31, 0.81], [-0.41, -0.53, 0.74]], dtype=np.float64
-)
+_VOTE_DIRECTIONS = np.array([[0.0, 0.0, 1.0], [0.5, 0.31, 0.81], [-0.41, -0.53, 0.74]], dtype=np.float64)
 _VOTE_DIRECTIONS /= np.linalg.norm(_VOTE_DIRECTIONS, axis=1, keepdims=True)
 
 
@@ -151,7 +149,9 @@ class Scene:
         lo, hi = self.extent
         x0, y0 = np.ceil(lo[:2])
         nx, ny = (np.floor(hi[:2]) - (x0, y0)).astype(int) + 1
-        return ReceiverGrid((float(x0), float(y0)), 1.0, (max(int(nx), 1), max(int(ny), 1)), float(lo[2]) + 1.5)
+        return ReceiverGrid(
+            (float(x0), float(y0)), 1.0, (max(int(nx), 1), max(int(ny), 1)), float(lo[2]) + 1.5
+        )
 
     # ------------------------------------------------------------------ back-ends
     @cached_property
@@ -264,9 +264,7 @@ class Scene:
     def merged_mesh(self) -> trimesh.Trimesh:
         """All objects as one mesh, faces coloured by material."""
         colors = np.array([material_color(o.material.name) + (255,) for o in self.objects], dtype=np.uint8)
-        return trimesh.Trimesh(
-            self.vertices, self.faces, face_colors=colors[self.face_object], process=False
-        )
+        return trimesh.Trimesh(self.vertices, self.faces, face_colors=colors[self.face_object], process=False)
 
     def summary(self) -> str:
         """A human-readable multi-line summary."""

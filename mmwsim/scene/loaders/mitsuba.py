@@ -28,7 +28,11 @@ _GROUND_NAME = re.compile(r"ground|terrain|floor|plane|road|street|pavement", re
 
 
 def _props(elem) -> dict[str, str]:
-    return {c.get("name"): c.get("value") for c in elem if c.get("name") is not None and c.get("value") is not None}
+    return {
+        c.get("name"): c.get("value")
+        for c in elem
+        if c.get("name") is not None and c.get("value") is not None
+    }
 
 
 def _float(props: dict[str, str], keys: tuple[str, ...], where: str) -> float | None:
@@ -54,7 +58,9 @@ def _material(elem, where: str) -> Material:
         eps = _float(props, ("relative_permittivity", "eta_r"), where)
         sigma = _float(props, ("conductivity", "sigma"), where)
         if eps is None or sigma is None:
-            raise MmwsimError(f"{where}: radio-material {ident!r} needs relative_permittivity and conductivity")
+            raise MmwsimError(
+                f"{where}: radio-material {ident!r} needs relative_permittivity and conductivity"
+            )
         return Material.custom(ident or "custom", eps, sigma, thickness)
     nested = elem.find("bsdf")
     if kind == "twosided" and nested is not None and nested.get("type", "").endswith("radio-material"):

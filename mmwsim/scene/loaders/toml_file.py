@@ -118,12 +118,16 @@ def load_toml(path: str | Path, transmitter: tuple[float, float, float] | None =
         if o.split:
             parts = sorted(mesh.split(only_watertight=False), key=lambda m: tuple(m.bounds[0]))
             width = len(str(len(parts) - 1))
-            objects += [SceneObject(f"{o.name}_{k:0{width}d}", m, material, o.kind) for k, m in enumerate(parts)]
+            objects += [
+                SceneObject(f"{o.name}_{k:0{width}d}", m, material, o.kind) for k, m in enumerate(parts)
+            ]
         else:
             objects.append(SceneObject(o.name, mesh, material, o.kind))
     tx = None
     if transmitter is not None:
-        tx = Transmitter(tuple(float(v) for v in transmitter), spec.transmitter.power_dbm if spec.transmitter else 30.0)
+        tx = Transmitter(
+            tuple(float(v) for v in transmitter), spec.transmitter.power_dbm if spec.transmitter else 30.0
+        )
     elif spec.transmitter is not None:
         tx = Transmitter(spec.transmitter.position, spec.transmitter.power_dbm)
     grid = None

@@ -16,12 +16,6 @@ from .objects import ReceiverGrid, SceneObject, Transmitter
 
 __all__ = ["Scene"]
 
-# Directions of the rays that vote on "inside a building": up, and two tilted ones
-# so that a ray grazing an edge cannot decide alone.
-_VOTE_DIRECTIONS = np.array([[0.0, 0.0, 1.0], [0.5, 0.31, 0.81], [-0.41, -0.53, 0.74]], dtype=np.float64)
-_VOTE_DIRECTIONS /= np.linalg.norm(_VOTE_DIRECTIONS, axis=1, keepdims=True)
-
-
 class Scene:
     """A set of named triangle meshes with radio materials, a transmitter and a receiver grid.
 
@@ -160,22 +154,34 @@ class Scene:
         return RayCaster(self.vertices, self.faces)
 
     @cached_property
-    def _building_caster(self) -> tuple[RayCaster, np.ndarray]:
-        idx = self._kind_faces(("building",))
-        return RayCaster(self.vertices, self.faces[idx]), idx
-
-    @cached_property
     def collision_model(self) -> CollisionModel:
         """FCL BVH over the buildings and other non-ground objects."""
         idx = self._kind_faces(("building", "other"))
         return CollisionModel(self.vertices, self.faces[idx])
 
     # ------------------------------------------------------------------ queries
+    @cached_property
+    def _roofs(self) -> tuple[shapely.STRtree, np.ndarray, np.ndarray]:
+        """Non-vertical building triangles: xy index, plane coefficients, sign of normal z."""
+        idx = self._kind_faces(("building",))
+        tri = self.vertices[self.faces[idx]]
+        n = self.face_normals[idx]
+        keep = np.abs(n[:, 2]) > 1e-9
+        tri, n = tri[keep], n[keep]
+        # plane z(x, y) = c0 + c1 x + c2 y through the triangle
+        c1, c2 = -n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2]
+        c0 = tri[:, 0, 2] - c1 * tri[:, 0, 0] - c2 * tri[:, 0, 1]
+        tree = shapely.STRtree(shapely.polygons(tri[:, :, :2]))
+        return tree, np.column_stack([c0, c1, c2]), np.sign(n[:, 2]).astype(np.int32)
+
     def outdoors(self, points: np.ndarray, z: float | None = None) -> np.ndarray:
         """Whether each point lies outside every building.
 
-        A point is inside when rays cast from it hit the inner (back) side of a
-        building face first; three rays vote so that edges cannot fool the test.
+        Counts the building faces crossed by a vertical ray upwards from each
+        point, +1 for a face whose normal points up (a roof seen from inside) and
+        -1 for one whose normal points down (an overhang seen from outside): the
+        point is inside when the sum is positive. Vertical walls do not count, so
+        touching buildings, shared walls and stacked parts cannot confuse the test.
         Building meshes must be closed with outward normals for this to hold.
 
         Parameters
@@ -197,18 +203,14 @@ class Scene:
             p = np.column_stack([p, np.full(len(p), float(height))])
         if not np.all(np.isfinite(p)):
             raise MmwsimError("points contain NaN or infinite coordinates")
-        caster, idx = self._building_caster
-        if caster.n_faces == 0:
+        tree, plane, sign = self._roofs
+        if len(sign) == 0:
             return np.ones(len(p), dtype=bool)
-        normals = self.face_normals[idx]
-        votes = np.zeros(len(p), dtype=np.int8)
-        for d in _VOTE_DIRECTIONS:
-            _, face = caster.intersect(p, np.broadcast_to(d, p.shape))
-            hit = face >= 0
-            inside = np.zeros(len(p), dtype=bool)
-            inside[hit] = normals[face[hit]] @ d > 0.0
-            votes += inside
-        return votes < 2
+        ip, it = tree.query(shapely.points(p[:, :2]), predicate="intersects")
+        z_face = plane[it, 0] + plane[it, 1] * p[ip, 0] + plane[it, 2] * p[ip, 1]
+        above = z_face > p[ip, 2]
+        winding = np.bincount(ip[above], weights=sign[it[above]], minlength=len(p))
+        return winding <= 0
 
     @cached_property
     def footprints(self) -> list[shapely.Polygon]:

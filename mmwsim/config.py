@@ -48,7 +48,10 @@ def validate(model: type[M], data: Any, where: str) -> M:
         return model.model_validate(data)
     except ValidationError as e:
         err = e.errors()[0]
-        key = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        loc = err["loc"]
+        if loc and isinstance(loc[-1], int) and err["type"] in ("missing", "too_long"):
+            loc, err = loc[:-1], {**err, "type": "length", "msg": "wrong number of values"}
+        key = ".".join(str(p) for p in loc) or "(top level)"
         if err["type"] == "extra_forbidden":
             msg = f"unknown key {key!r}"
         elif err["type"] == "missing":

@@ -114,7 +114,10 @@ def load_toml(path: str | Path, transmitter: tuple[float, float, float] | None =
             raise MmwsimError(f"{where}: {e}") from None
         if o.thickness is not None:
             material = material.with_thickness(o.thickness)
-        mesh = read_mesh(resolve_inside(o.mesh, path.parent, where))
+        try:
+            mesh = read_mesh(resolve_inside(o.mesh, path.parent, where))
+        except MmwsimError as e:
+            raise MmwsimError(str(e) if str(e).startswith(where) else f"{where}: {e}") from None
         if o.split:
             parts = sorted(mesh.split(only_watertight=False), key=lambda m: tuple(m.bounds[0]))
             width = len(str(len(parts) - 1))

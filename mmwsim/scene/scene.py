@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from functools import cached_property
 
 import numpy as np
@@ -15,6 +16,7 @@ from ..materials import Material, material_color
 from .objects import ReceiverGrid, SceneObject, Transmitter
 
 __all__ = ["Scene"]
+
 
 class Scene:
     """A set of named triangle meshes with radio materials, a transmitter and a receiver grid.
@@ -278,17 +280,19 @@ class Scene:
             f"  triangles    {self.n_triangles}",
             f"  objects      {len(self.objects)}",
         ]
-        width = max((len(o.name) for o in self.objects), default=0)
-        for o in self.objects[:20]:
-            m = o.material
-            thick = f", {m.thickness:g} m slab" if m.thickness else ""
-            eps = m.complex_permittivity(self.frequency, warn=False)
-            lines.append(
-                f"    {o.name:<{width}}  {o.kind:<8} {len(o.mesh.faces):>7} tri  {m.name}{thick}"
-                f" (eps {eps.real:.3g}{eps.imag:+.3g}j)"
-            )
-        if len(self.objects) > 20:
-            lines.append(f"    ... and {len(self.objects) - 20} more")
+        groups: dict[tuple, list[SceneObject]] = {}
+        for o in self.objects:  # building_00 .. building_80 of one kind and material: one line
+            key = (re.sub(r"_?\d+$", "", o.name), o.kind, o.material.name, o.material.thickness)
+            groups.setdefault(key, []).append(o)
+        rows = []
+        for (_, kind, mat_name, thick), objs in groups.items():
+            label = objs[0].name if len(objs) == 1 else f"{objs[0].name}..{objs[-1].name} ({len(objs)})"
+            eps = objs[0].material.complex_permittivity(self.frequency, warn=False)
+            slab = f", {thick:g} m slab" if thick else ""
+            tris = sum(len(o.mesh.faces) for o in objs)
+            rows.append((label, kind, tris, f"{mat_name}{slab} (eps {eps.real:.3g}{eps.imag:+.3g}j)"))
+        width = max(len(r[0]) for r in rows) if rows else 0
+        lines += [f"    {a:<{width}}  {b:<8} {c:>7} tri  {d}" for a, b, c, d in rows]
         mats = sorted(self.materials)
         lines.append(f"  materials    {', '.join(mats)}")
         for name in mats:

@@ -9,9 +9,15 @@ from scenes.manhattan import random_plan
 
 
 def test_names():
-    assert {"default", "manhattan", "free_space", "ground_only", "ground_wall", "street_canyon", "corner_reflector"} <= set(
-        scenes.names()
-    )
+    assert {
+        "default",
+        "manhattan",
+        "free_space",
+        "ground_only",
+        "ground_wall",
+        "street_canyon",
+        "corner_reflector",
+    } <= set(scenes.names())
 
 
 def test_default_scene_contract():
@@ -40,7 +46,11 @@ def test_shipped_default_files_are_reproducible(tmp_path):
 
 
 def test_manhattan_is_deterministic_and_seeded():
-    a, b, c = scenes.load("manhattan:seed=4"), scenes.load("manhattan:seed=4"), scenes.load("manhattan:seed=5")
+    a, b, c = (
+        scenes.load("manhattan:seed=4"),
+        scenes.load("manhattan:seed=4"),
+        scenes.load("manhattan:seed=5"),
+    )
     assert a.vertices.tobytes() == b.vertices.tobytes() and a.faces.tobytes() == b.faces.tobytes()
     assert a.vertices.shape != c.vertices.shape or not np.array_equal(a.vertices, c.vertices)
     assert a.check_transmitter(a.transmitter.position) is not None
@@ -59,7 +69,9 @@ def test_manhattan_street_widths_and_heights():
     assert 18 < np.median(h) < 32 and h.max() > 2 * np.median(h) and h.min() >= 6
 
 
-@pytest.mark.parametrize("name", ["free_space", "ground_only", "ground_wall", "street_canyon", "corner_reflector"])
+@pytest.mark.parametrize(
+    "name", ["free_space", "ground_only", "ground_wall", "street_canyon", "corner_reflector"]
+)
 def test_canonical_scenes(name):
     s = scenes.load(name)
     assert s.transmitter is not None and s.receivers.size > 0

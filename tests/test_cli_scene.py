@@ -71,11 +71,15 @@ def test_errors_exit_2_with_one_line(argv, message, capsys):
 def test_console_script_exit_status(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("objects = [")
-    r = subprocess.run([sys.executable, "-m", "mmwsim", "scene", "show", str(bad)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "mmwsim", "scene", "show", str(bad)], capture_output=True, text=True
+    )
     assert r.returncode == 2
     assert r.stderr.strip().startswith("mmwsim: error:") and "malformed TOML" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
-    r = subprocess.run([sys.executable, "-m", "mmwsim", "scene", "frobnicate"], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "mmwsim", "scene", "frobnicate"], capture_output=True, text=True
+    )
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
 
 

@@ -49,7 +49,11 @@ def test_bare_mesh_formats(tmp_path, suffix):
     assert s.n_triangles == 26
     assert s.transmitter is None
     # coordinates kept as given: the two buildings are where they were written
-    assert s.outdoors(np.array([[20, 15, 1.5], [45, 45, 1.5], [35, 25, 1.5]])).tolist() == [False, False, True]
+    assert s.outdoors(np.array([[20, 15, 1.5], [45, 45, 1.5], [35, 25, 1.5]])).tolist() == [
+        False,
+        False,
+        True,
+    ]
 
 
 def test_glb_named_parts(tmp_path):
@@ -199,7 +203,11 @@ def test_symlink_cannot_leave_folder(tmp_path):
 @pytest.mark.parametrize(
     "old,new,message",
     [
-        ('<string name="type" value="concrete"/>', '<string name="type" value="kryptonite"/>', "unknown material"),
+        (
+            '<string name="type" value="concrete"/>',
+            '<string name="type" value="kryptonite"/>',
+            "unknown material",
+        ),
         ('value="meshes/towers.ply"', 'value="../towers.ply"', "leaves the scene folder"),
         ('value="meshes/towers.ply"', 'value="meshes/none.ply"', "mesh file not found"),
         ('<ref id="custom"/>', '<ref id="nothing"/>', "unknown material 'nothing'"),

@@ -1,0 +1,202 @@
+"""A street network derived from a scene's free space: the medial axis of the open area between
+the buildings, kept where the street is wide enough for a vehicle, as a graph of centre lines.
+
+The medial axis comes from the Voronoi diagram of points spaced along the footprint outlines
+(its edges are equidistant from two outline points); edges closer than ``half_width`` to a
+building are dropped, short dead-end spurs (towards recesses between buildings) are pruned, and
+the largest connected part is kept. Vehicles then drive along the centre lines (see
+:func:`mmwsim.trajectories.generate`), choosing a random onward street at every junction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from .errors import TrajectoryError
+
+__all__ = ["StreetNetwork"]
+
+
+class StreetNetwork:
+    """Street centre lines as an undirected graph.
+
+    Parameters
+    ----------
+    nodes : (m, 2) float64
+        Node positions, metres.
+    edges : (e, 2) int64
+        Node index pairs of the straight centre-line pieces.
+    """
+
+    def __init__(self, nodes: np.ndarray, edges: np.ndarray):
+        self.nodes = np.asarray(nodes, dtype=np.float64).reshape(-1, 2)
+        self.edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+        if len(self.edges) == 0:
+            raise TrajectoryError("the street network is empty: no street is wide enough for vehicles")
+        self.edge_length = np.linalg.norm(self.nodes[self.edges[:, 1]] - self.nodes[self.edges[:, 0]], axis=1)
+        deg = np.bincount(self.edges.ravel(), minlength=len(self.nodes))
+        self.degree = deg
+        # Padded neighbour table for vectorised walks: row i lists i's neighbours, -1 after.
+        nbr = np.full((len(self.nodes), max(int(deg.max()), 1)), -1, dtype=np.int64)
+        both = np.concatenate([self.edges, self.edges[:, ::-1]])
+        both = both[np.lexsort((both[:, 1], both[:, 0]))]
+        first = np.searchsorted(both[:, 0], both[:, 0])
+        nbr[both[:, 0], np.arange(len(both)) - first] = both[:, 1]
+        self.neighbours = nbr
+
+    @property
+    def total_length(self) -> float:
+        """Summed length of the centre lines, metres."""
+        return float(self.edge_length.sum())
+
+    def lines(self) -> np.ndarray:
+        """(e, 2, 2) float64 end points of every edge (for drawing and tests)."""
+        return self.nodes[self.edges]
+
+    @classmethod
+    def from_footprints(
+        cls,
+        footprints: list[shapely.Polygon],
+        bounds: np.ndarray,
+        half_width: float = 4.0,
+        spacing: float = 2.0,
+        spur_length: float = 20.0,
+        simplify: float = 0.3,
+    ) -> StreetNetwork:
+        """Derive the network from building footprints.
+
+        Parameters
+        ----------
+        footprints : list of shapely.Polygon
+            Building footprints.
+        bounds : (2, 2) float
+            Area [[xmin, ymin], [xmax, ymax]], metres.
+        half_width : float
+            Minimum distance of a centre line from any building, metres.
+        spacing : float
+            Spacing of the outline points of the Voronoi diagram, metres.
+        spur_length : float
+            Dead ends shorter than this (and not at the area's edge) are pruned, metres.
+        simplify : float
+            Tolerance for straightening the centre lines, metres.
+        """
+        b = np.asarray(bounds, dtype=np.float64).reshape(2, 2)
+        if not footprints:
+            raise TrajectoryError("no buildings, hence no streets: drive off-network instead")
+        if not (half_width > 0 and spacing > 0 and spur_length >= 0 and simplify >= 0):
+            raise TrajectoryError("street network: half_width and spacing must be > 0")
+        box = shapely.box(*b.ravel())
+        union = shapely.union_all(footprints)
+        pts = shapely.get_coordinates(shapely.segmentize(union.boundary, spacing))
+        edges = shapely.get_parts(
+            shapely.voronoi_polygons(shapely.multipoints(pts), only_edges=True, extend_to=box)
+        )
+        edges = shapely.intersection(edges, box)
+        edges = edges[(shapely.get_type_id(edges) == 1) & (shapely.length(edges) > 1e-9)]
+        edges = edges[shapely.distance(edges, union) >= half_width]
+        if len(edges) == 0:
+            raise TrajectoryError(f"no street is wider than {2 * half_width:g} m: no network for vehicles")
+        lines = shapely.get_parts(shapely.line_merge(shapely.multilinestrings(edges)))
+        lines = _prune_spurs(lines, box, spur_length)
+        if simplify > 0:
+            lines = shapely.simplify(lines, simplify, preserve_topology=True)
+        return cls._from_lines(lines)
+
+    @classmethod
+    def from_scene(cls, scene, half_width: float = 4.0, **kw) -> StreetNetwork:
+        """Network of ``scene`` within its receiver-grid bounds (see :meth:`from_footprints`)."""
+        return cls.from_footprints(scene.footprints, scene.receivers.bounds, half_width, **kw)
+
+    @classmethod
+    def _from_lines(cls, lines: np.ndarray) -> StreetNetwork:
+        coords, which = shapely.get_coordinates(lines, return_index=True)
+        key = np.round(coords, 6)
+        nodes, inverse = np.unique(key, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        same = which[1:] == which[:-1]
+        e = np.column_stack([inverse[:-1][same], inverse[1:][same]])
+        e = e[e[:, 0] != e[:, 1]]
+        e = np.unique(np.sort(e, axis=1), axis=0)
+        if len(e) == 0:
+            raise TrajectoryError("the street network is empty: no street is wide enough for vehicles")
+        adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(nodes), len(nodes)))
+        _, label = connected_components(adj, directed=False)
+        sizes = np.bincount(label[e[:, 0]], minlength=label.max() + 1)
+        keep_nodes = np.flatnonzero(label == np.argmax(sizes))
+        remap = np.full(len(nodes), -1)
+        remap[keep_nodes] = np.arange(len(keep_nodes))
+        e = remap[e]
+        e = e[(e >= 0).all(axis=1)]
+        return cls(nodes[keep_nodes], e)
+
+    # ------------------------------------------------------------------ routes
+    def random_routes(
+        self, n: int, distance: np.ndarray, rng: np.random.Generator, max_pieces: int = 10_000
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Random drives: start anywhere on the network (uniform by length), then at every node take
+        a random onward edge (never straight back unless at a dead end).
+
+        Parameters
+        ----------
+        n : int
+            Number of routes.
+        distance : (n,) float
+            Length each route must reach, metres.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        points : (n, R, 2) float64
+            Route vertices, metres; the first is the start.
+        arc : (n, R) float64
+            Arc length at every vertex, metres (non-decreasing, starts at 0).
+        """
+        need = np.broadcast_to(np.asarray(distance, dtype=np.float64), (n,))
+        e = rng.choice(len(self.edges), size=n, p=self.edge_length / self.edge_length.sum())
+        flip = rng.random(n) < 0.5
+        prev = np.where(flip, self.edges[e, 1], self.edges[e, 0])
+        cur = np.where(flip, self.edges[e, 0], self.edges[e, 1])
+        t = rng.random(n)
+        start = self.nodes[prev] + t[:, None] * (self.nodes[cur] - self.nodes[prev])
+        pts = [start, self.nodes[cur]]
+        arcs = [np.zeros(n), (1.0 - t) * self.edge_length[e]]
+        rows = np.arange(n)
+        for _ in range(max_pieces):
+            if np.all(arcs[-1] >= need):
+                break
+            cand = self.neighbours[cur]
+            ok = (cand >= 0) & (cand != prev[:, None])
+            count = ok.sum(axis=1)
+            pick = np.floor(rng.random(n) * np.maximum(count, 1)).astype(np.int64)
+            col = np.argmax(np.cumsum(ok, axis=1) > pick[:, None], axis=1)
+            nxt = np.where(count > 0, cand[rows, col], prev)
+            step = np.linalg.norm(self.nodes[nxt] - self.nodes[cur], axis=1)
+            pts.append(self.nodes[nxt])
+            arcs.append(arcs[-1] + step)
+            prev, cur = cur, nxt
+        return np.stack(pts, axis=1), np.stack(arcs, axis=1)
+
+
+def _prune_spurs(lines: np.ndarray, box: shapely.Polygon, spur_length: float) -> np.ndarray:
+    """Drop short dead-end chains that do not end at the area's edge, until none is left."""
+    edge = box.exterior
+    for _ in range(20):
+        if len(lines) <= 1:
+            return lines
+        ends = np.stack([shapely.get_coordinates(shapely.get_point(lines, i)) for i in (0, -1)], axis=1)
+        key = np.round(ends.reshape(-1, 2), 6)
+        _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        leaf = (counts[inv.reshape(-1)] == 1).reshape(-1, 2)
+        at_edge = (shapely.distance(shapely.points(ends.reshape(-1, 2)), edge) < 1.0).reshape(-1, 2)
+        dead = (leaf & ~at_edge).any(axis=1)
+        drop = (
+            dead & (shapely.length(lines) < spur_length) & ~(leaf.all(axis=1) & (shapely.length(lines) > 0))
+        )
+        # An isolated piece (both ends leaves) is left to the largest-component filter.
+        if not drop.any():
+            return lines
+        lines = shapely.get_parts(shapely.line_merge(shapely.multilinestrings(lines[~drop])))
+    return lines

@@ -1,0 +1,158 @@
+"""Fingerprint sequences of trajectories: grid lookup (nearest, bilinear in dB), exact PDPs via a
+function, and the loader with fresh noise. The data set is a small in-test stand-in with the
+data set's shapes (pdp (n_rx, n_beams, n_bins) dBm with -inf, ReceiverGrid, valid)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from mmwsim.scene import ReceiverGrid
+from mmwsim.trajectories import (
+    FEATURE_BINS,
+    GridPdp,
+    SequenceLoader,
+    TracedPdp,
+    Trajectories,
+    TrajectoryError,
+    noisy_fingerprints,
+    pdp_sequences,
+)
+
+GRID = ReceiverGrid((10.0, 20.0), 2.0, (21, 16), 1.5)
+BEAMS, BINS = 4, 120
+NOSIG = 60  # bins from here on carry no signal
+
+
+def field(xy: np.ndarray) -> np.ndarray:
+    """A PDP linear in position (dB), so bilinear interpolation in dB is exact: (..., BEAMS, BINS)."""
+    x, y = xy[..., 0, None, None], xy[..., 1, None, None]
+    beam = np.arange(BEAMS)[:, None]
+    k = np.arange(BINS)[None, :]
+    return -60.0 - 0.5 * x - 0.25 * y - 3.0 * beam - 0.4 * k
+
+
+@pytest.fixture
+def dataset():
+    xy = GRID.positions()[:, :2]
+    pdp = field(xy).astype(np.float32)
+    pdp[:, :, NOSIG:] = -np.inf
+    return SimpleNamespace(grid=GRID, pdp=pdp, valid=np.ones(GRID.size, dtype=bool))
+
+
+def _trajectories(rng, n=12, length=5) -> Trajectories:
+    start = rng.uniform((12.0, 22.0), (45.0, 45.0), size=(n, 2))
+    pos = start[:, None] + np.cumsum(rng.uniform(-1.5, 1.5, size=(n, length, 2)), axis=1) * [1, 0.5]
+    return Trajectories(pos, np.ones(n), np.arange(n), np.zeros((n, length - 1)))
+
+
+def test_nearest_lookup(dataset, rng):
+    t = _trajectories(rng)
+    pdp = pdp_sequences(GridPdp.from_dataset(dataset), t)
+    assert pdp.shape == (12, 5, BEAMS, BINS) and pdp.dtype == np.float32
+    snapped = np.rint((t.positions - GRID.origin) / GRID.spacing) * GRID.spacing + GRID.origin
+    assert np.allclose(pdp[..., :NOSIG], field(snapped)[..., :NOSIG], atol=1e-3)
+    assert np.all(pdp[..., NOSIG:] == -np.inf)
+
+
+def test_bilinear_lookup_in_db_is_exact_for_linear_field(dataset, rng):
+    t = _trajectories(rng)
+    pdp = GridPdp.from_dataset(dataset, method="linear", bins=FEATURE_BINS).pdp_at(t.positions)
+    assert pdp.shape == (12, 5, BEAMS, 81)
+    want = field(t.positions)[..., 1:82]
+    k = NOSIG - 1
+    assert np.allclose(pdp[..., :k], want[..., :k], atol=2e-3)
+    assert np.all(pdp[..., k:] == -np.inf)
+
+
+def test_linear_lookup_ignores_invalid_points(dataset):
+    ds = dataset
+    bad = 3 + GRID.shape[0] * 4  # grid point (16, 28)
+    ds.valid[bad] = False
+    ds.pdp[bad] = 50.0  # garbage where there is no data
+    p = np.array([[[16.5, 28.5]]])  # next to the invalid point
+    got = GridPdp.from_dataset(ds, method="linear").pdp_at(p)[0, 0, :, :NOSIG]
+    corners = np.array([[18.0, 28.0], [16.0, 30.0], [18.0, 30.0]])
+    vals = field(corners)[:, :, :NOSIG]
+    assert np.all(got >= vals.min(axis=0) - 1e-3) and np.all(got <= vals.max(axis=0) + 1e-3)
+
+
+def test_traced_pdp_at_continuous_positions(rng):
+    t = _trajectories(rng)
+    heights = []
+
+    def trace(points):
+        heights.append(points[:, 2])
+        return field(points[:, :2])
+
+    pdp = pdp_sequences(TracedPdp(trace, height=1.5, bins=FEATURE_BINS), t)
+    assert np.allclose(pdp, field(t.positions)[..., 1:82], atol=1e-3)
+    assert np.all(np.concatenate(heights) == 1.5)
+
+
+def test_noise_statistics_match_closed_form(rng):
+    threshold, sigma = -115.0, 6.0
+    delta = np.array([-9.0, -3.0, 0.0, 4.0, 12.0, -np.inf])
+    pdp = np.broadcast_to(threshold + delta, (20000, 6))
+    bits = noisy_fingerprints(pdp, sigma, threshold, rng)
+    assert bits.dtype == np.uint8
+    assert np.allclose(bits.mean(axis=0), norm.cdf(delta / sigma), atol=0.012)
+    assert np.array_equal(noisy_fingerprints(pdp[:1], 0.0, threshold, rng)[0], delta >= 0)
+
+
+def test_loader_batches_fresh_noise_and_determinism(dataset, rng):
+    t = _trajectories(rng, n=10, length=7)
+    source = GridPdp.from_dataset(dataset, bins=FEATURE_BINS)
+    loader = SequenceLoader(source, t, batch_size=4, seed=9)
+    epoch1 = list(loader)
+    assert len(loader) == 3 and [b[0].shape for b in epoch1] == [(4, 7, BEAMS, 81)] * 2 + [(2, 7, BEAMS, 81)]
+    fp, pos = epoch1[0]
+    assert fp.dtype == np.float32 and pos.dtype == np.float32 and pos.shape == (4, 7, 2)
+    seen = np.concatenate([b[1] for b in epoch1])
+    assert sorted(map(tuple, seen[:, 0].round(3))) == sorted(
+        map(tuple, t.positions[:, 0].astype(np.float32).round(3))
+    )
+    epoch2 = list(loader)
+    assert not all(
+        np.array_equal(a[0], b[0]) for a, b in zip(epoch1, epoch2, strict=True)
+    )  # fresh noise and order
+    again = SequenceLoader(source, t, batch_size=4, seed=9, cache=False)
+    assert all(
+        np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(epoch1, again, strict=True)
+    )
+    # Bins without signal never fire; a static user gets independent noise at every step.
+    static = Trajectories(np.full((1, 7, 2), 30.0), [0], [0], np.zeros((1, 6)))
+    fp = next(iter(SequenceLoader(source, static, batch_size=1, sigma_db=6.0, threshold_dbm=-110.0)))[0][0]
+    assert not fp[:, :, NOSIG - 1 :].any() and fp[:, :, : NOSIG - 1].any()
+    assert len({fp[k].tobytes() for k in range(7)}) > 1
+
+
+def test_loader_bad_parameters(dataset, rng):
+    t = _trajectories(rng)
+    with pytest.raises(TrajectoryError, match="batch size"):
+        SequenceLoader(GridPdp.from_dataset(dataset), t, batch_size=0)
+    with pytest.raises(TrajectoryError, match="sigma"):
+        SequenceLoader(GridPdp.from_dataset(dataset), t, sigma_db=-1.0)
+    with pytest.raises(TrajectoryError, match="does not fit"):
+        GridPdp(GRID, np.zeros((5, 2, 3)))
+
+
+def test_traced_pdp_from_scene_matches_grid_trace():
+    """Exact tracing at continuous positions agrees with the grid trace where they coincide."""
+    import scenes
+    from mmwsim.antennas import make_codebook
+    from mmwsim.fingerprints import power_delay_profile
+    from mmwsim.tracer import trace
+
+    scene = scenes.load("street_canyon")
+    grid_pdp = power_delay_profile(
+        trace(scene, n_rays=20000), make_codebook("rotating_horn", scene.frequency)
+    )
+    source = TracedPdp.from_scene(scene, n_rays=20000)
+    on_grid = scene.receivers.positions()[[3, 10, 50], :2]
+    assert np.array_equal(source.pdp_at(on_grid[None])[0], GridPdp(scene.receivers, grid_pdp).pdp_at(on_grid))
+    off = on_grid + [1.3, 0.7]
+    assert not np.array_equal(source.pdp_at(off), GridPdp(scene.receivers, grid_pdp).pdp_at(off))

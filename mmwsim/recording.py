@@ -13,6 +13,7 @@ Every stage logs into one entity tree::
     trajectories/<id>/{true,<model>}  step timeline
     training/<model>/...              epoch timeline
     planner/{tree,ellipse,path,cost}  iteration timeline
+    planner/{optimum,corridor,endpoints}  exact shortest path, corridor, start and goal (static)
 
 Recordings are written headless to a temporary file next to the target and
 renamed into place when complete, so a failed run never leaves a half-written
@@ -81,6 +82,9 @@ class Entity:
     PLANNER_ELLIPSE = "planner/ellipse"
     PLANNER_PATH = "planner/path"
     PLANNER_COST = "planner/cost"
+    PLANNER_OPTIMUM = "planner/optimum"
+    PLANNER_CORRIDOR = "planner/corridor"
+    PLANNER_ENDPOINTS = "planner/endpoints"
 
     @staticmethod
     def scene_material(name: str) -> str:

@@ -25,6 +25,10 @@ class CollisionModel:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         self.n_faces = int(len(faces))
+        self.bvh: fcl.BVHModel | None = None
+        self.object: fcl.CollisionObject | None = None
+        if self.n_faces == 0:  # FCL complains about empty models; nothing can collide anyway
+            return
         bvh = fcl.BVHModel()
         bvh.beginModel(len(vertices), len(faces))
         bvh.addSubModel(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int32))

@@ -1,0 +1,48 @@
+"""Directions and polarisation directions on the unit sphere.
+
+A direction is (zenith theta from +z, azimuth phi from +x towards +y), radians.
+Fields are written in the local spherical basis (theta_hat, phi_hat) of that
+direction; V polarisation is theta_hat, H is phi_hat.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["unit_vector", "theta_hat", "phi_hat", "spherical_basis", "angles_of", "POLARISATIONS"]
+
+POLARISATIONS = {"V": np.array([1.0, 0.0]), "H": np.array([0.0, 1.0])}
+"""Unit field vectors in the (theta_hat, phi_hat) basis: V is theta_hat, H is phi_hat."""
+
+
+def unit_vector(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """(..., 3) float64 unit direction of zenith ``theta`` and azimuth ``phi`` (radians, broadcast)."""
+    theta, phi = np.broadcast_arrays(np.asarray(theta, dtype=np.float64), np.asarray(phi, dtype=np.float64))
+    st = np.sin(theta)
+    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def theta_hat(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """(..., 3) float64 unit vector of increasing zenith (points down at the horizon)."""
+    theta, phi = np.broadcast_arrays(np.asarray(theta, dtype=np.float64), np.asarray(phi, dtype=np.float64))
+    ct = np.cos(theta)
+    return np.stack([ct * np.cos(phi), ct * np.sin(phi), -np.sin(theta)], axis=-1)
+
+
+def phi_hat(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """(..., 3) float64 unit vector of increasing azimuth (horizontal)."""
+    theta, phi = np.broadcast_arrays(np.asarray(theta, dtype=np.float64), np.asarray(phi, dtype=np.float64))
+    return np.stack([-np.sin(phi), np.cos(phi), np.zeros_like(phi)], axis=-1)
+
+
+def spherical_basis(theta: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(r_hat, theta_hat, phi_hat)``, each (..., 3) float64, for directions (theta, phi) in radians."""
+    return unit_vector(theta, phi), theta_hat(theta, phi), phi_hat(theta, phi)
+
+
+def angles_of(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Zenith and azimuth (radians) of vectors ``v`` (..., 3); azimuth in (-pi, pi]."""
+    v = np.asarray(v, dtype=np.float64)
+    r = np.linalg.norm(v, axis=-1)
+    theta = np.arccos(np.clip(v[..., 2] / np.where(r > 0, r, 1.0), -1.0, 1.0))
+    return theta, np.arctan2(v[..., 1], v[..., 0])

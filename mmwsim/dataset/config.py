@@ -1,0 +1,137 @@
+"""The resolved configuration of a generated data set (stored in it, with its content hash)."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Literal
+
+import numpy as np
+
+from ..config import Int2, StrictModel, Vec2, Vec3, content_hash
+from ..errors import MmwsimError
+from ..fingerprints import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
+
+__all__ = ["CodebookConfig", "GenerateConfig", "resolve_config", "scene_fingerprint"]
+
+DEFAULT_TILE = 4096
+DEFAULT_PATH_CHUNK = 32768
+PDP_CHUNK = 1024
+
+
+class CodebookConfig(StrictModel):
+    """Transmit codebook; angles in degrees."""
+
+    kind: Literal["rotating_horn", "planar_array"] = "rotating_horn"
+    n_beams: int = 32
+    gain_dbi: float = 24.5
+    elevation_deg: float = 0.0
+    azimuth0_deg: float = 0.0
+    n_horizontal: int = 8
+    n_vertical: int = 4
+
+
+class GenerateConfig(StrictModel):
+    """Everything that determines the bytes of a data set.
+
+    Lengths in metres, powers in dBm / dBi, frequencies in Hz.
+    """
+
+    scene: str
+    scene_sha256: str
+    frequency: float
+    transmitter: Vec3
+    tx_power_dbm: float = 30.0
+    grid_origin: Vec2
+    grid_spacing: float
+    grid_shape: Int2
+    grid_height: float
+    max_reflections: int = 3
+    n_rays: int
+    codebook: CodebookConfig = CodebookConfig()
+    rx_gain_dbi: float = RX_GAIN_DBI
+    sample_rate: float = SAMPLE_RATE
+    n_bins: int = N_BINS
+    band_limited: bool = False
+    sigma_db: float = SIGMA_DB
+    threshold_dbm: float = THRESHOLD_DBM
+    bins: Int2 = BINS
+    tile_size: int = DEFAULT_TILE
+    path_chunk: int = DEFAULT_PATH_CHUNK
+
+    @property
+    def n_rx(self) -> int:
+        return int(self.grid_shape[0] * self.grid_shape[1])
+
+    @property
+    def n_tiles(self) -> int:
+        return -(-self.n_rx // self.tile_size)
+
+    @property
+    def pdp_chunk(self) -> int:
+        return min(self.tile_size, PDP_CHUNK)
+
+    def tile_range(self, tile: int) -> tuple[int, int]:
+        """Receivers [start, stop) of ``tile``."""
+        return tile * self.tile_size, min((tile + 1) * self.tile_size, self.n_rx)
+
+    def hash(self) -> str:
+        return content_hash(self)
+
+
+def scene_fingerprint(scene) -> str:
+    """SHA-256 of a scene's triangles, objects and materials (detects an edited scene file)."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(scene.vertices, dtype="<f8").tobytes())
+    h.update(np.ascontiguousarray(scene.faces, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(scene.face_object, dtype="<i4").tobytes())
+    for o in scene.objects:
+        h.update(f"{o.name}|{o.kind}|{o.material!r}".encode())
+    h.update(repr(float(scene.frequency)).encode())
+    return h.hexdigest()
+
+
+def resolve_config(
+    scene_spec: str,
+    scene,
+    spacing: float | None = None,
+    max_reflections: int = 3,
+    n_rays: int | None = None,
+    codebook: CodebookConfig | None = None,
+    tile_size: int = DEFAULT_TILE,
+    path_chunk: int = DEFAULT_PATH_CHUNK,
+    band_limited: bool = False,
+) -> GenerateConfig:
+    """The full configuration of a data set of ``scene`` (loaded from ``scene_spec``)."""
+    from ..tracer import DEFAULT_RAYS
+
+    if scene.transmitter is None:
+        raise MmwsimError(f"scene {scene_spec!r} has no transmitter")
+    grid = scene.receivers
+    if spacing is not None:
+        if not (spacing > 0 and np.isfinite(spacing)):
+            raise MmwsimError(f"--spacing must be a positive number of metres, got {spacing!r}")
+        grid = grid.with_spacing(float(spacing))
+    if int(max_reflections) != max_reflections or not 0 <= max_reflections <= 6:
+        raise MmwsimError(f"--max-reflections must be an integer from 0 to 6, got {max_reflections!r}")
+    if tile_size < 1 or path_chunk < 1:
+        raise MmwsimError("tile size and path chunk must be positive")
+    tile_size = int(tile_size)
+    if tile_size > PDP_CHUNK and tile_size % PDP_CHUNK:
+        raise MmwsimError(f"tile size above {PDP_CHUNK} must be a multiple of {PDP_CHUNK}, got {tile_size}")
+    return GenerateConfig(
+        scene=str(scene_spec),
+        scene_sha256=scene_fingerprint(scene),
+        frequency=float(scene.frequency),
+        transmitter=tuple(float(v) for v in scene.transmitter.position),
+        tx_power_dbm=float(scene.transmitter.power_dbm),
+        grid_origin=tuple(float(v) for v in grid.origin),
+        grid_spacing=float(grid.spacing),
+        grid_shape=tuple(int(v) for v in grid.shape),
+        grid_height=float(grid.height),
+        max_reflections=int(max_reflections),
+        n_rays=int(DEFAULT_RAYS if n_rays is None else n_rays),
+        codebook=codebook or CodebookConfig(),
+        band_limited=bool(band_limited),
+        tile_size=tile_size,
+        path_chunk=int(path_chunk),
+    )

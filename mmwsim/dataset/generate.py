@@ -1,0 +1,172 @@
+"""Scene to data set: trace the receiver grid tile by tile and write the zarr store."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from ..errors import MmwsimError
+from .config import DEFAULT_PATH_CHUNK, DEFAULT_TILE, CodebookConfig, GenerateConfig, resolve_config
+from .store import StoreWriter
+from .tiles import TileResult, compute_tile
+
+__all__ = ["generate", "run_tiles"]
+
+
+def _n_beams(cfg: GenerateConfig) -> int:
+    c = cfg.codebook
+    return c.n_beams if c.kind == "rotating_horn" else c.n_horizontal * c.n_vertical
+
+
+def generate(
+    scene: str,
+    out: str | os.PathLike,
+    spacing: float | None = None,
+    max_reflections: int = 3,
+    workers: int = 1,
+    resume: bool = False,
+    scheduler: str | None = None,
+    rrd: str | os.PathLike | None = None,
+    progress: bool = True,
+    n_rays: int | None = None,
+    codebook: CodebookConfig | None = None,
+    band_limited: bool = False,
+    tile_size: int = DEFAULT_TILE,
+    path_chunk: int = DEFAULT_PATH_CHUNK,
+) -> Path:
+    """Generate the data set of ``scene`` into the directory ``out``.
+
+    Parameters
+    ----------
+    scene : str
+        Catalogue name or scene file.
+    out : path
+        Store directory; written as ``<out>.partial`` and renamed when complete.
+    spacing : float, optional
+        Receiver spacing, metres (default: the scene's grid).
+    max_reflections : int
+    workers : int
+        Local processes tracing tiles (1: this process).
+    resume : bool
+        Continue an unfinished run of the same configuration (or accept a complete one).
+    scheduler : str, optional
+        Address of a Dask scheduler that runs the tiles instead.
+    rrd : path, optional
+        Also write a Rerun recording of the result.
+    progress : bool
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    Path of the store. Same configuration gives the same bytes, whatever the
+    executor, the number of workers, or interruptions resumed.
+    """
+    from ..scene import load_scene
+
+    if workers < 1:
+        raise MmwsimError(f"--workers must be at least 1, got {workers}")
+    out = Path(out)
+    if rrd is not None and Path(rrd).suffix != ".rrd":
+        raise MmwsimError(f"{rrd}: a recording must end in .rrd")
+    scene_obj = load_scene(scene)
+    cfg = resolve_config(
+        scene,
+        scene_obj,
+        spacing,
+        max_reflections,
+        n_rays,
+        codebook,
+        tile_size=tile_size,
+        path_chunk=path_chunk,
+        band_limited=band_limited,
+    )
+    writer = StoreWriter(out, cfg, _n_beams(cfg), resume)
+    if writer.complete:
+        if progress:
+            print(f"{out} is already complete (content hash {cfg.hash()[:12]})")
+    else:
+        todo = range(writer.tiles_done, cfg.n_tiles)
+        bar = _bar(cfg, writer.tiles_done, progress)
+        try:
+            for result in run_tiles(cfg, todo, workers, scheduler):
+                writer.write(result)
+                bar.update(cfg.tile_range(result.tile)[1] - cfg.tile_range(result.tile)[0])
+        finally:
+            bar.close()
+        writer.finish()
+    if rrd is not None:
+        from .record import record_dataset
+        from .store import Dataset
+
+        record_dataset(Dataset.open(out), rrd, scene=scene_obj)
+    return out
+
+
+def _bar(cfg: GenerateConfig, tiles_done: int, enabled: bool):
+    from tqdm import tqdm
+
+    done = min(tiles_done * cfg.tile_size, cfg.n_rx)
+    return tqdm(
+        total=cfg.n_rx,
+        initial=done,
+        unit="rx",
+        unit_scale=True,
+        desc="generate",
+        disable=not enabled,
+        leave=False,
+    )
+
+
+def run_tiles(
+    cfg: GenerateConfig, tiles: Iterable[int], workers: int = 1, scheduler: str | None = None
+) -> Iterator[TileResult]:
+    """Compute ``tiles`` on the chosen executor and yield the results in tile order.
+
+    At most two tiles per worker are in flight, which bounds memory.
+    """
+    text = cfg.model_dump_json()
+    tiles = list(tiles)
+    if scheduler is not None:
+        yield from _dask(text, tiles, scheduler)
+    elif workers == 1:
+        for t in tiles:
+            yield compute_tile(text, t)
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: Embree and BLAS thread pools do not survive fork reliably
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            yield from _windowed(lambda t: pool.submit(compute_tile, text, t), tiles, 2 * workers)
+
+
+def _windowed(submit, tiles: list[int], depth: int) -> Iterator[TileResult]:
+    pending = []
+    it = iter(tiles)
+    for t in it:
+        pending.append(submit(t))
+        if len(pending) >= depth:
+            break
+    while pending:
+        result = pending.pop(0).result()
+        nxt = next(it, None)
+        if nxt is not None:
+            pending.append(submit(nxt))
+        yield result
+
+
+def _dask(text: str, tiles: list[int], address: str) -> Iterator[TileResult]:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise MmwsimError("--scheduler needs dask.distributed (pip install 'mmwsim[dask]')") from None
+    try:
+        client = Client(address, timeout="10s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as e:
+        raise MmwsimError(f"cannot reach the Dask scheduler at {address!r}: {e}") from None
+    try:
+        n = max(1, sum(client.nthreads().values()))
+        yield from _windowed(lambda t: client.submit(compute_tile, text, t, pure=False), tiles, 2 * n)
+    finally:
+        client.close()

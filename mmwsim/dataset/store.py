@@ -1,0 +1,412 @@
+"""The zarr v3 data set: layout, tile-by-tile writer with a commit marker, and the reader.
+
+Layout (all arrays zstd-compressed)::
+
+    /                      attrs["mmwsim"]: format, version, config, content_hash, summary
+    grid/                  attrs: origin, spacing, shape, height (the ReceiverGrid)
+    grid/positions         (n_rx, 3) float64, metres; index = ix + nx * iy
+    grid/outdoors          (n_rx,) bool
+    grid/valid             (n_rx,) bool: outdoors and some PDP entry in the bin window >= threshold
+    grid/pdp               (n_rx, n_beams, n_bins) float16, dBm, -inf = no signal
+    grid/paths/start       (n_rx,) int64: receiver i's paths are start[i] : start[i] + count[i]
+    grid/paths/count       (n_rx,) int32
+    grid/paths/delay       (n_slots,) float64 s (NaN in unused slots)
+    grid/paths/jones       (n_slots, 2, 2) complex64 (Paths' convention, includes lambda / 4 pi L)
+    grid/paths/aod, aoa    (n_slots, 2) float32 (zenith, azimuth), radians
+    grid/paths/order       (n_slots,) int8 reflections
+    grid/paths/objects     (n_slots, K) int32 scene object per interaction, -1 pads
+    grid/paths/faces       (n_slots, K) int32 triangle per interaction, -1 pads
+    grid/paths/points      (n_slots, K, 3) float32 interaction points, metres
+    trajectories/<split>   added by mmwsim.trajectories
+
+Each tile's paths start on a chunk boundary of the path arrays (the slots after
+them up to the next boundary stay unused), so a tile's writes never touch another
+tile's chunks: a killed run resumes by redoing the uncommitted tile and ends with
+the same bytes. The run writes into ``<out>.partial`` and renames it when done.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import zarr
+from zarr.codecs import ZstdCodec
+
+from ..errors import MmwsimError
+from ..scene import ReceiverGrid
+from ..tracer.paths import Paths
+from .config import GenerateConfig
+
+__all__ = ["FORMAT", "Dataset", "StoreWriter", "partial_path"]
+
+FORMAT = "mmwsim-dataset"
+FORMAT_VERSION = 1
+MARKER = ".mmwsim-progress.json"
+_ZSTD = ZstdCodec(level=3, checksum=False)
+
+PATH_FIELDS = ("delay", "jones", "aod", "aoa", "order", "objects", "faces", "points")
+
+
+def partial_path(out: Path) -> Path:
+    return out.with_name(out.name + ".partial")
+
+
+def _path_specs(cfg: GenerateConfig) -> dict[str, tuple[tuple[int, ...], str, object]]:
+    k = max(cfg.max_reflections, 1)
+    return {
+        "delay": ((), "float64", np.nan),
+        "jones": ((2, 2), "complex64", 0),
+        "aod": ((2,), "float32", np.nan),
+        "aoa": ((2,), "float32", np.nan),
+        "order": ((), "int8", -1),
+        "objects": ((k,), "int32", -1),
+        "faces": ((k,), "int32", -1),
+        "points": ((k, 3), "float32", np.nan),
+    }
+
+
+class StoreWriter:
+    """Creates or reopens ``<out>.partial`` and appends tiles in order.
+
+    Parameters
+    ----------
+    out : path
+        Final store directory.
+    cfg : GenerateConfig
+    n_beams : int
+    resume : bool
+        Continue a partial store of the same configuration; without it an existing
+        store or partial store is an error.
+    """
+
+    def __init__(self, out: Path, cfg: GenerateConfig, n_beams: int, resume: bool):
+        from .. import __version__
+
+        self.out, self.cfg, self.n_beams = Path(out), cfg, int(n_beams)
+        self.tmp = partial_path(self.out)
+        self.hash = cfg.hash()
+        self.complete = False
+        if self.out.exists():
+            other = _stored_hash(self.out)
+            if not resume:
+                raise MmwsimError(f"{self.out} already exists (use --resume to check it, or remove it)")
+            if other != self.hash:
+                raise MmwsimError(
+                    f"{self.out} holds a data set of another configuration "
+                    f"(content hash {str(other)[:12]}, this run {self.hash[:12]})"
+                )
+            self.complete = True
+            (self.out / MARKER).unlink(missing_ok=True)  # a run killed between rename and cleanup
+            return
+        parent = self.out.parent
+        if not parent.is_dir() or not os.access(parent, os.W_OK):
+            raise MmwsimError(f"{self.out}: folder {parent} does not exist or is not writable")
+        if self.tmp.exists():
+            if not resume:
+                raise MmwsimError(f"{self.tmp} holds an unfinished run (use --resume, or remove it)")
+            other = _stored_hash(self.tmp)
+            if other != self.hash:
+                raise MmwsimError(
+                    f"{self.tmp} holds an unfinished run of another configuration "
+                    f"(content hash {str(other)[:12]}, this run {self.hash[:12]})"
+                )
+            marker = self._read_marker()
+            self.tiles_done, self.slots = marker["tiles_done"], marker["slots"]
+            self.root = zarr.open_group(str(self.tmp), mode="r+", zarr_format=3)
+            return
+        self.tiles_done, self.slots = 0, 0
+        self._create(__version__)
+
+    # ------------------------------------------------------------------ creation
+    def _create(self, version: str) -> None:
+        cfg = self.cfg
+        root = zarr.open_group(str(self.tmp), mode="w", zarr_format=3)
+        root.attrs["mmwsim"] = {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "version": version,
+            "content_hash": self.hash,
+            "config": cfg.model_dump(mode="json"),
+            "complete": False,
+        }
+        grid = ReceiverGrid(cfg.grid_origin, cfg.grid_spacing, cfg.grid_shape, cfg.grid_height)
+        g = root.create_group("grid")
+        g.attrs.update(
+            {
+                "origin": list(grid.origin),
+                "spacing": grid.spacing,
+                "shape": list(grid.shape),
+                "height": grid.height,
+            }
+        )
+        n, t = cfg.n_rx, cfg.tile_size
+
+        def arr(group, name, shape, chunks, dtype, fill):
+            return group.create_array(
+                name, shape=shape, chunks=chunks, dtype=dtype, compressors=_ZSTD, fill_value=fill
+            )
+
+        pos = arr(g, "positions", (n, 3), (t, 3), "float64", 0.0)
+        pos[:] = grid.positions()
+        arr(g, "outdoors", (n,), (t,), "bool", False)
+        arr(g, "valid", (n,), (t,), "bool", False)
+        arr(
+            g,
+            "pdp",
+            (n, self.n_beams, cfg.n_bins),
+            (cfg.pdp_chunk, self.n_beams, cfg.n_bins),
+            "float16",
+            -np.inf,
+        )
+        p = g.create_group("paths")
+        arr(p, "start", (n,), (t,), "int64", 0)
+        arr(p, "count", (n,), (t,), "int32", 0)
+        for name, (tail, dtype, fill) in _path_specs(cfg).items():
+            arr(p, name, (0,) + tail, (cfg.path_chunk,) + tail, dtype, fill)
+        self.root = root
+        self._write_marker()
+
+    # ------------------------------------------------------------------ marker
+    def _marker_path(self) -> Path:
+        return self.tmp / MARKER
+
+    def _read_marker(self) -> dict:
+        try:
+            m = json.loads(self._marker_path().read_text())
+            if m.get("content_hash") != self.hash:
+                raise ValueError("hash")
+            return m
+        except (OSError, ValueError) as e:
+            raise MmwsimError(f"{self.tmp}: unreadable progress marker ({e}); remove the folder") from None
+
+    def _write_marker(self) -> None:
+        tmp = self.tmp / (MARKER + ".tmp")
+        tmp.write_text(
+            json.dumps({"content_hash": self.hash, "tiles_done": self.tiles_done, "slots": self.slots})
+        )
+        os.replace(tmp, self._marker_path())
+
+    # ------------------------------------------------------------------ tiles
+    def write(self, result) -> None:
+        """Write tile ``result`` (a :class:`~mmwsim.dataset.tiles.TileResult`), the next one in order."""
+        cfg = self.cfg
+        if result.tile != self.tiles_done:
+            raise RuntimeError(f"tile {result.tile} written out of order (expected {self.tiles_done})")
+        start, stop = cfg.tile_range(result.tile)
+        g = self.root["grid"]
+        m = int(result.count.sum())
+        c = cfg.path_chunk
+        used = -(-m // c) * c
+        p = g["paths"]
+        if used:
+            for name, (tail, dtype, fill) in _path_specs(cfg).items():
+                a = p[name]
+                a.resize((self.slots + used,) + tail)
+                block = np.full((used,) + tail, fill, dtype=dtype)
+                block[:m] = result.paths[name]
+                a[self.slots : self.slots + used] = block
+        first = self.slots + np.concatenate([[0], np.cumsum(result.count[:-1])]).astype(np.int64)
+        p["start"][start:stop] = np.where(result.count > 0, first, 0)
+        p["count"][start:stop] = result.count
+        g["pdp"][start:stop] = result.pdp
+        g["outdoors"][start:stop] = result.outdoors
+        g["valid"][start:stop] = result.valid
+        self.tiles_done += 1
+        self.slots += used
+        self._write_marker()
+
+    def finish(self) -> None:
+        """Record the summary, drop the marker and move the store into place."""
+        if self.complete:
+            return
+        info = dict(self.root.attrs["mmwsim"])
+        valid = np.asarray(self.root["grid/valid"][:])
+        info.update(
+            complete=True,
+            n_valid=int(valid.sum()),
+            n_paths=int(np.asarray(self.root["grid/paths/count"][:]).sum()),
+        )
+        self.root.attrs["mmwsim"] = info
+        # Rename first, then drop the marker: a kill in between leaves a complete store
+        # whose stray marker the next --resume removes.
+        os.replace(self.tmp, self.out)
+        (self.out / MARKER).unlink()
+        self.complete = True
+
+    def discard(self) -> None:
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def _stored_hash(path: Path) -> str | None:
+    try:
+        meta = json.loads((Path(path) / "zarr.json").read_text())
+        return meta["attributes"]["mmwsim"]["content_hash"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+class Dataset:
+    """A generated data set, for library users.
+
+    Open with :meth:`open`. Arrays are read lazily from the zarr store unless said.
+
+    Attributes
+    ----------
+    root : zarr.Group
+        The store's root group (``mode="r+"`` lets other stages add groups, e.g. trajectories).
+    config : dict
+        Resolved configuration the data set was generated with.
+    content_hash : str
+    version : str
+        mmwsim version that wrote it.
+    grid : ReceiverGrid
+    """
+
+    def __init__(self, root: zarr.Group, path: Path):
+        info = root.attrs.get("mmwsim")
+        if not isinstance(info, dict) or info.get("format") != FORMAT:
+            raise MmwsimError(f"{path}: not an mmwsim data set")
+        if not info.get("complete"):
+            raise MmwsimError(f"{path}: the data set is incomplete (resume its generation)")
+        self.root, self.path = root, Path(path)
+        self.config: dict = info["config"]
+        self.content_hash: str = info["content_hash"]
+        self.version: str = info["version"]
+        ga = root["grid"].attrs
+        self.grid = ReceiverGrid(
+            tuple(ga["origin"]), float(ga["spacing"]), tuple(ga["shape"]), float(ga["height"])
+        )
+        self._valid: np.ndarray | None = None
+        self._positions: np.ndarray | None = None
+        self._samplers: dict = {}
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, mode: str = "r") -> Dataset:
+        """Open the data set at ``path`` (``mode`` ``"r"`` or ``"r+"``)."""
+        p = Path(path)
+        if not (p / "zarr.json").is_file():
+            hint = " (an unfinished run is next to it: resume it)" if partial_path(p).exists() else ""
+            raise MmwsimError(f"{p}: no data set there{hint}")
+        return cls(zarr.open_group(str(p), mode=mode, zarr_format=3), p)
+
+    # ------------------------------------------------------------------ arrays
+    @property
+    def n_rx(self) -> int:
+        return self.grid.size
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(n_rx, 3) float64 receiver positions, metres."""
+        if self._positions is None:
+            self._positions = np.asarray(self.root["grid/positions"][:])
+        return self._positions
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(n_rx,) bool: outdoors and detected (some noise-free PDP entry above the threshold)."""
+        if self._valid is None:
+            self._valid = np.asarray(self.root["grid/valid"][:])
+        return self._valid
+
+    @property
+    def outdoors(self) -> np.ndarray:
+        """(n_rx,) bool."""
+        return np.asarray(self.root["grid/outdoors"][:])
+
+    @property
+    def pdp(self) -> zarr.Array:
+        """(n_rx, n_beams, n_bins) float16 dBm (a lazy zarr array; ``[...]`` reads numpy)."""
+        return self.root["grid/pdp"]
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.pdp.shape[1])
+
+    # ------------------------------------------------------------------ lookups
+    def nearest(self, xy: np.ndarray) -> np.ndarray:
+        """Index of the grid point nearest to each position.
+
+        Parameters
+        ----------
+        xy : (..., 2) or (..., 3) float
+            Positions, metres (z ignored); points off the grid snap to its edge.
+
+        Returns
+        -------
+        (...) int64
+        """
+        p = np.asarray(xy, dtype=np.float64)
+        g = self.grid
+        ix = np.clip(np.rint((p[..., 0] - g.origin[0]) / g.spacing), 0, g.shape[0] - 1).astype(np.int64)
+        iy = np.clip(np.rint((p[..., 1] - g.origin[1]) / g.spacing), 0, g.shape[1] - 1).astype(np.int64)
+        return ix + g.shape[0] * iy
+
+    def paths(self, index: np.ndarray | int) -> Paths:
+        """The stored paths of receivers ``index`` (re-traced nothing), as :class:`Paths`.
+
+        ``rx_index`` of the result counts the given receivers 0..len(index)-1.
+        """
+        idx = np.atleast_1d(np.asarray(index, dtype=np.int64))
+        p = self.root["grid/paths"]
+        start = np.asarray(p["start"].get_coordinate_selection(idx))
+        count = np.asarray(p["count"].get_coordinate_selection(idx)).astype(np.int64)
+        sel = np.concatenate(
+            [np.arange(s, s + c) for s, c in zip(start, count, strict=True)] + [np.zeros(0, int)]
+        )
+        cols = {name: np.asarray(p[name].get_orthogonal_selection((sel,))) for name in PATH_FIELDS}
+        from ..constants import SPEED_OF_LIGHT
+
+        return Paths(
+            tx=np.asarray(self.config["transmitter"], dtype=np.float64),
+            rx=self.positions[idx],
+            frequency=float(self.config["frequency"]),
+            rx_index=np.repeat(np.arange(len(idx)), count),
+            length=cols["delay"] * SPEED_OF_LIGHT,
+            jones=cols["jones"].astype(np.complex128),
+            aod=cols["aod"].astype(np.float64),
+            aoa=cols["aoa"].astype(np.float64),
+            order=cols["order"],
+            faces=cols["faces"].astype(np.int64),
+            objects=cols["objects"],
+            points=cols["points"].astype(np.float64),
+        )
+
+    # ------------------------------------------------------------------ fingerprints
+    def sampler(self, sigma_db: float | None = None, threshold_dbm: float | None = None, bins=None):
+        """A :class:`~mmwsim.fingerprints.FingerprintSampler` over all receivers (built once, cached)."""
+        from ..fingerprints import FingerprintSampler
+
+        key = (
+            self.config["sigma_db"] if sigma_db is None else float(sigma_db),
+            self.config["threshold_dbm"] if threshold_dbm is None else float(threshold_dbm),
+            tuple(self.config["bins"] if bins is None else bins),
+        )
+        if key not in self._samplers:
+            self._samplers[key] = FingerprintSampler(self.pdp, *key)
+        return self._samplers[key]
+
+    def fingerprints(
+        self,
+        index: np.ndarray,
+        rng: np.random.Generator,
+        sigma_db: float | None = None,
+        threshold_dbm: float | None = None,
+        bins=None,
+        threads: int = 1,
+    ) -> np.ndarray:
+        """Fingerprints of receivers ``index`` (n,) with fresh noise: (n, n_beams, n_window) uint8.
+
+        Defaults (sigma, threshold, bin window) come from the data set's config.
+        """
+        return self.sampler(sigma_db, threshold_dbm, bins).sample(index, rng, threads=threads)
+
+    def __repr__(self) -> str:
+        nv = int(self.valid.sum())
+        return (
+            f"Dataset({str(self.path)!r}, {self.grid.shape[0]} x {self.grid.shape[1]} receivers at "
+            f"{self.grid.spacing:g} m, {nv} valid, {self.n_beams} beams)"
+        )

@@ -1,0 +1,181 @@
+"""``mmwsim trace``: exact specular paths from a transmitter to receivers."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MmwsimError
+
+_TABLE_LIMIT = 20  # receivers printed in full; more get a summary
+
+
+def register(sub) -> None:
+    p = sub.add_parser("trace", help="trace the specular paths from a transmitter to receivers")
+    p.add_argument("scene", help="catalogue name (default, manhattan:seed=3, ...) or a .toml/.xml/mesh file")
+    p.add_argument("--tx", required=True, help="transmitter position X,Y,Z in metres")
+    rx = p.add_mutually_exclusive_group(required=True)
+    rx.add_argument("--rx", action="append", help="receiver position X,Y,Z in metres (repeatable)")
+    rx.add_argument("--rx-file", help="CSV file of receivers with the header x,y,z")
+    p.add_argument("--max-reflections", type=int, default=3, help="highest reflection order (default 3)")
+    p.add_argument("--rays", type=int, default=None, help="rays shot for the candidate search")
+    p.add_argument("--json", help="write the paths as JSON to this file")
+    p.add_argument("--rrd", help="write a Rerun recording of the paths to this .rrd file")
+    # Let "--rx -20,-6,1.5" through: argparse only treats plain numbers as negatives by default.
+    p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eE+-]*$")
+    p.set_defaults(func=_run)
+
+
+def read_receivers(path: str | os.PathLike) -> np.ndarray:
+    """Receivers from a CSV file with the header ``x,y,z``; (n, 3) float64, metres."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as e:
+        raise MmwsimError(f"{path}: cannot read receiver file ({e.strerror})") from None
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows or [c.strip().lower() for c in rows[0]] != ["x", "y", "z"]:
+        raise MmwsimError(f"{path}: the first line must be the header x,y,z")
+    if len(rows) == 1:
+        raise MmwsimError(f"{path}: no receivers after the header")
+    out = np.empty((len(rows) - 1, 3))
+    for i, row in enumerate(rows[1:]):
+        try:
+            values = [float(c) for c in row]
+        except ValueError:
+            raise MmwsimError(
+                f"{path}, line {i + 2}: expected three numbers, got {','.join(row)!r}"
+            ) from None
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise MmwsimError(f"{path}, line {i + 2}: expected three finite numbers, got {','.join(row)!r}")
+        out[i] = values
+    return out
+
+
+def _run(args) -> int:
+    from ..recording import Recording, log_scene
+    from ..scene import load_scene
+    from ..tracer import DEFAULT_RAYS, Tracer
+    from ..tracer.record import log_candidates, log_paths
+    from . import parse_vector
+
+    tx = np.array(parse_vector(args.tx, 3, "--tx"))
+    if args.rx_file:
+        rx = read_receivers(args.rx_file)
+    else:
+        rx = np.array([parse_vector(r, 3, "--rx") for r in args.rx])
+    if not 0 <= args.max_reflections <= 6:
+        raise MmwsimError(f"--max-reflections must be from 0 to 6, got {args.max_reflections}")
+    for flag, target, suffix in (("--json", args.json, ".json"), ("--rrd", args.rrd, ".rrd")):
+        if target:
+            t = Path(target)
+            if t.suffix != suffix:
+                raise MmwsimError(f"{flag} {t}: must end in {suffix}")
+            if not t.parent.is_dir() or not os.access(t.parent, os.W_OK):
+                raise MmwsimError(f"{flag} {t}: folder {t.parent} does not exist or is not writable")
+    scene = load_scene(args.scene)
+    scene.check_transmitter(tx)
+    outside = ~scene.outdoors(rx)
+    if outside.any():
+        i = int(np.flatnonzero(outside)[0])
+        raise MmwsimError(
+            f"receiver {i + 1} at ({', '.join(f'{v:g}' for v in rx[i])}) is inside a building"
+            + (f" ({int(outside.sum())} receivers are)" if outside.sum() > 1 else "")
+        )
+    n_rays = args.rays or DEFAULT_RAYS
+    if n_rays < 1:
+        raise MmwsimError(f"--rays must be positive, got {n_rays}")
+    tracer = Tracer(scene, tx, args.max_reflections, n_rays)
+    paths = tracer.trace(rx)
+    names = [o.name for o in scene.objects]
+    print(_report(paths, names))
+    if args.json:
+        _write_json(Path(args.json), paths, names)
+        print(f"wrote {args.json}")
+    if args.rrd:
+        with Recording(
+            args.rrd,
+            "trace",
+            families=("world",),
+            config={
+                "scene": scene.source or scene.name,
+                "tx": tx.tolist(),
+                "max_reflections": args.max_reflections,
+            },
+        ) as rec:
+            log_scene(rec, scene)
+            shown = np.arange(min(len(rx), _TABLE_LIMIT))
+            log_paths(rec, paths, shown)
+            log_candidates(rec, tracer)
+        print(f"wrote {args.rrd}")
+    return 0
+
+
+def _path_records(paths, names: list[str]) -> list[list[dict]]:
+    gain = paths.gain_db("V", "V")
+    aod, aoa = np.degrees(paths.aod), np.degrees(paths.aoa)
+    per_rx: list[list[dict]] = [[] for _ in range(paths.n_rx)]
+    for i in range(paths.n_paths):
+        k = int(paths.order[i])
+        per_rx[int(paths.rx_index[i])].append(
+            {
+                "delay_s": float(paths.delay[i]),
+                "gain_db": float(gain[i]) if np.isfinite(gain[i]) else None,
+                "aod": [float(aod[i, 0]), float(aod[i, 1])],
+                "aoa": [float(aoa[i, 0]), float(aoa[i, 1])],
+                "interactions": [names[o] for o in paths.objects[i, :k]],
+            }
+        )
+    return per_rx
+
+
+def _write_json(path: Path, paths, names: list[str]) -> None:
+    doc = {
+        "receivers": [
+            {"position": [float(v) for v in paths.rx[j]], "paths": recs}
+            for j, recs in enumerate(_path_records(paths, names))
+        ]
+    }
+    tmp = path.with_name(f".{path.name}.partial")
+    with open(tmp, "w") as fh:
+        json.dump(doc, fh, indent=1)
+    os.replace(tmp, path)
+
+
+def _report(paths, names: list[str]) -> str:
+    counts = paths.count()
+    lines = [f"{paths.n_paths} paths to {paths.n_rx} receivers"]
+    if paths.n_rx <= _TABLE_LIMIT:
+        gain = paths.gain_db("V", "V")
+        off = paths.offsets()
+        for j in range(paths.n_rx):
+            lines.append(
+                f"receiver {j + 1} at ({', '.join(f'{v:g}' for v in paths.rx[j])}): {counts[j]} paths"
+            )
+            if counts[j]:
+                lines.append(
+                    f"  {'delay ns':>10} {'gain dB':>8} {'AoD th,ph':>13} {'AoA th,ph':>13}  interactions"
+                )
+            for i in range(off[j], off[j + 1]):
+                k = int(paths.order[i])
+                inter = " > ".join(names[o] for o in paths.objects[i, :k]) or "line of sight"
+                aod, aoa = np.degrees(paths.aod[i]), np.degrees(paths.aoa[i])
+                lines.append(
+                    f"  {1e9 * paths.delay[i]:10.3f} {gain[i]:8.2f} {aod[0]:6.1f},{aod[1]:6.1f}"
+                    f" {aoa[0]:6.1f},{aoa[1]:6.1f}  {inter}"
+                )
+    else:
+        by_order = np.bincount(paths.order, minlength=paths.max_reflections + 1)
+        lines.append(
+            f"  paths per receiver: mean {counts.mean():.2f}, max {counts.max()}; "
+            f"receivers without a path: {int((counts == 0).sum())}"
+        )
+        lines.append("  by reflection order: " + ", ".join(f"{k}: {n}" for k, n in enumerate(by_order)))
+    return "\n".join(lines)

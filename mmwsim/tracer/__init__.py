@@ -1,0 +1,18 @@
+"""Exact specular ray tracing (Embree candidates, image-method geometry)."""
+
+from .fresnel import fresnel, slab
+from .paths import POLARISATIONS, Paths
+from .reflectors import Reflectors, group_reflectors
+from .tracer import DEFAULT_RAYS, Tracer, trace
+
+__all__ = [
+    "DEFAULT_RAYS",
+    "POLARISATIONS",
+    "Paths",
+    "Reflectors",
+    "Tracer",
+    "fresnel",
+    "group_reflectors",
+    "slab",
+    "trace",
+]

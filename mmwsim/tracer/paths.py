@@ -1,0 +1,147 @@
+"""The result of tracing: specular paths from one transmitter to many receivers.
+
+Polarisation convention
+-----------------------
+Fields are written in the spherical bases (theta_hat, phi_hat) of the antennas:
+at the transmitter for the departure direction ``aod``, at the receiver for the
+arrival direction ``aoa`` (the direction from the receiver towards where the
+wave comes from). ``jones[p] @ [E_theta, E_phi]_tx = [E_theta, E_phi]_rx`` for
+unit fields radiated by isotropic antennas, and includes the spreading factor
+``lambda / (4 pi L)``; it excludes the propagation phase ``exp(-j 2 pi f tau)``,
+which follows from ``delay``. For line of sight ``jones = lambda/(4 pi L) *
+diag(1, -1)`` (phi_hat flips sign between the two bases).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..constants import SPEED_OF_LIGHT
+
+__all__ = ["Paths", "POLARISATIONS"]
+
+POLARISATIONS = {"V": np.array([1.0, 0.0]), "H": np.array([0.0, 1.0])}
+"""Unit field vectors in the (theta_hat, phi_hat) basis: V is theta_hat, H is phi_hat."""
+
+
+@dataclass
+class Paths:
+    """Specular paths, flat over all receivers, grouped by receiver.
+
+    Parameters
+    ----------
+    tx : (3,) float64
+        Transmitter position, metres.
+    rx : (n_rx, 3) float64
+        Receiver positions, metres.
+    frequency : float
+        Carrier, Hz.
+    rx_index : (n_paths,) int64
+        Receiver of each path; non-decreasing, so each receiver's paths are one run.
+    length : (n_paths,) float64
+        Unfolded path length, metres.
+    jones : (n_paths, 2, 2) complex128
+        Field transfer matrix (see module docstring), includes lambda / (4 pi L).
+    aod, aoa : (n_paths, 2) float64
+        Departure and arrival directions as (zenith, azimuth), radians.
+    order : (n_paths,) int8
+        Number of reflections; 0 is line of sight.
+    faces : (n_paths, max_reflections) int64
+        Triangles hit, in order; -1 pads.
+    objects : (n_paths, max_reflections) int32
+        Index of each interaction's scene object; -1 pads.
+    points : (n_paths, max_reflections, 3) float64
+        Interaction points, metres; NaN pads.
+    """
+
+    tx: np.ndarray
+    rx: np.ndarray
+    frequency: float
+    rx_index: np.ndarray
+    length: np.ndarray
+    jones: np.ndarray
+    aod: np.ndarray
+    aoa: np.ndarray
+    order: np.ndarray
+    faces: np.ndarray
+    objects: np.ndarray
+    points: np.ndarray
+
+    @property
+    def n_paths(self) -> int:
+        return int(len(self.length))
+
+    @property
+    def n_rx(self) -> int:
+        return int(len(self.rx))
+
+    @property
+    def max_reflections(self) -> int:
+        return int(self.faces.shape[1])
+
+    @property
+    def delay(self) -> np.ndarray:
+        """(n_paths,) float64 propagation delay, seconds."""
+        return self.length / SPEED_OF_LIGHT
+
+    @property
+    def wavelength(self) -> float:
+        return SPEED_OF_LIGHT / self.frequency
+
+    def offsets(self) -> np.ndarray:
+        """(n_rx + 1,) int64: paths of receiver i are ``offsets[i]:offsets[i+1]``."""
+        return np.searchsorted(self.rx_index, np.arange(self.n_rx + 1)).astype(np.int64)
+
+    def count(self) -> np.ndarray:
+        """(n_rx,) int64 number of paths per receiver."""
+        return np.diff(self.offsets())
+
+    def amplitude(self, tx_pol: str | np.ndarray = "V", rx_pol: str | np.ndarray = "V") -> np.ndarray:
+        """Complex amplitude per path for isotropic antennas of given polarisations.
+
+        Parameters
+        ----------
+        tx_pol, rx_pol : {"V", "H"} or (2,) complex
+            Field vectors in the (theta_hat, phi_hat) bases.
+
+        Returns
+        -------
+        (n_paths,) complex128
+            ``rx_pol^T @ jones @ tx_pol`` (no conjugation: a receiving antenna's
+            effective length is its transmit pattern, by reciprocity).
+        """
+        t = POLARISATIONS[tx_pol] if isinstance(tx_pol, str) else np.asarray(tx_pol)
+        r = POLARISATIONS[rx_pol] if isinstance(rx_pol, str) else np.asarray(rx_pol)
+        return np.einsum("i,pij,j->p", r, self.jones, t)
+
+    def gain_db(self, tx_pol: str = "V", rx_pol: str = "V") -> np.ndarray:
+        """(n_paths,) float64 path gain 20 log10 |amplitude|, dB."""
+        with np.errstate(divide="ignore"):
+            return 20.0 * np.log10(np.abs(self.amplitude(tx_pol, rx_pol)))
+
+    def select(self, mask: np.ndarray) -> Paths:
+        """The paths where ``mask`` (n_paths,) is true, receivers unchanged."""
+        kw = {f.name: getattr(self, f.name) for f in fields(self)}
+        for name in ("rx_index", "length", "jones", "aod", "aoa", "order", "faces", "objects", "points"):
+            kw[name] = kw[name][mask]
+        return Paths(**kw)
+
+    @staticmethod
+    def concatenate(parts: list[Paths]) -> Paths:
+        """Join results for disjoint receiver sets (same transmitter), receivers in order."""
+        if not parts:
+            raise ValueError("nothing to concatenate")
+        first = parts[0]
+        shift = np.cumsum([0] + [p.n_rx for p in parts[:-1]])
+        return Paths(
+            tx=first.tx,
+            rx=np.concatenate([p.rx for p in parts]),
+            frequency=first.frequency,
+            rx_index=np.concatenate([p.rx_index + s for p, s in zip(parts, shift, strict=True)]),
+            **{
+                name: np.concatenate([getattr(p, name) for p in parts])
+                for name in ("length", "jones", "aod", "aoa", "order", "faces", "objects", "points")
+            },
+        )

@@ -7,9 +7,22 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from .antennas import (
+    Codebook,
+    Isotropic,
+    Pattern,
+    PlanarArrayCodebook,
+    PyramidalHorn,
+    RotatingHorn,
+    ShortDipole,
+    make_codebook,
+)
 from .constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
+from .dataset import Dataset, GenerateConfig
+from .dataset import generate as generate_dataset
 from .errors import MaterialRangeWarning, MmwsimError
 from .materials import ITU_MATERIALS, Material, get_material, material_names
+from .fingerprints import FingerprintSampler, fingerprints, power_delay_profile
 from .recording import Entity, Recording, Timeline
 from .scene import (
     ReceiverGrid,
@@ -21,8 +34,26 @@ from .scene import (
     load_scene,
     load_toml,
 )
+from .tracer import Paths, Tracer, trace
 
 __all__ = [
+    "Codebook",
+    "Dataset",
+    "FingerprintSampler",
+    "GenerateConfig",
+    "Isotropic",
+    "Paths",
+    "Pattern",
+    "PlanarArrayCodebook",
+    "PyramidalHorn",
+    "RotatingHorn",
+    "ShortDipole",
+    "Tracer",
+    "fingerprints",
+    "generate_dataset",
+    "make_codebook",
+    "power_delay_profile",
+    "trace",
     "DEFAULT_FREQUENCY",
     "SPEED_OF_LIGHT",
     "ITU_MATERIALS",

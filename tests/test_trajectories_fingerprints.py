@@ -1,6 +1,7 @@
 """Fingerprint sequences of trajectories: grid lookup (nearest, bilinear in dB), exact PDPs via a
-function, and the loader with fresh noise. The data set is a small in-test stand-in with the
-data set's shapes (pdp (n_rx, n_beams, n_bins) dBm with -inf, ReceiverGrid, valid)."""
+function, and the loader with fresh noise (fast sampler and Gaussian noise alike). The grid
+arrays are small in-test stand-ins with the data set's shapes (pdp (n_rx, n_beams, n_bins) dBm
+with -inf, ReceiverGrid, valid); tests/test_trajectories_dataset.py runs on a real data set."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
+from mmwsim.fingerprints import detection_probability
 from mmwsim.scene import ReceiverGrid
 from mmwsim.trajectories import (
     FEATURE_BINS,
@@ -43,6 +45,10 @@ def dataset():
     return SimpleNamespace(grid=GRID, pdp=pdp, valid=np.ones(GRID.size, dtype=bool))
 
 
+def grid_pdp(ds, **kw) -> GridPdp:
+    return GridPdp(ds.grid, ds.pdp, ds.valid, **kw)
+
+
 def _trajectories(rng, n=12, length=5) -> Trajectories:
     start = rng.uniform((12.0, 22.0), (45.0, 45.0), size=(n, 2))
     pos = start[:, None] + np.cumsum(rng.uniform(-1.5, 1.5, size=(n, length, 2)), axis=1) * [1, 0.5]
@@ -51,7 +57,7 @@ def _trajectories(rng, n=12, length=5) -> Trajectories:
 
 def test_nearest_lookup(dataset, rng):
     t = _trajectories(rng)
-    pdp = pdp_sequences(GridPdp.from_dataset(dataset), t)
+    pdp = pdp_sequences(grid_pdp(dataset), t)
     assert pdp.shape == (12, 5, BEAMS, BINS) and pdp.dtype == np.float32
     snapped = np.rint((t.positions - GRID.origin) / GRID.spacing) * GRID.spacing + GRID.origin
     assert np.allclose(pdp[..., :NOSIG], field(snapped)[..., :NOSIG], atol=1e-3)
@@ -60,7 +66,7 @@ def test_nearest_lookup(dataset, rng):
 
 def test_bilinear_lookup_in_db_is_exact_for_linear_field(dataset, rng):
     t = _trajectories(rng)
-    pdp = GridPdp.from_dataset(dataset, method="linear", bins=FEATURE_BINS).pdp_at(t.positions)
+    pdp = grid_pdp(dataset, method="linear", bins=FEATURE_BINS).pdp_at(t.positions)
     assert pdp.shape == (12, 5, BEAMS, 81)
     want = field(t.positions)[..., 1:82]
     k = NOSIG - 1
@@ -74,7 +80,7 @@ def test_linear_lookup_ignores_invalid_points(dataset):
     ds.valid[bad] = False
     ds.pdp[bad] = 50.0  # garbage where there is no data
     p = np.array([[[16.5, 28.5]]])  # next to the invalid point
-    got = GridPdp.from_dataset(ds, method="linear").pdp_at(p)[0, 0, :, :NOSIG]
+    got = grid_pdp(ds, method="linear").pdp_at(p)[0, 0, :, :NOSIG]
     corners = np.array([[18.0, 28.0], [16.0, 30.0], [18.0, 30.0]])
     vals = field(corners)[:, :, :NOSIG]
     assert np.all(got >= vals.min(axis=0) - 1e-3) and np.all(got <= vals.max(axis=0) + 1e-3)
@@ -105,7 +111,7 @@ def test_noise_statistics_match_closed_form(rng):
 
 def test_loader_batches_fresh_noise_and_determinism(dataset, rng):
     t = _trajectories(rng, n=10, length=7)
-    source = GridPdp.from_dataset(dataset, bins=FEATURE_BINS)
+    source = grid_pdp(dataset, bins=FEATURE_BINS)
     loader = SequenceLoader(source, t, batch_size=4, seed=9)
     epoch1 = list(loader)
     assert len(loader) == 3 and [b[0].shape for b in epoch1] == [(4, 7, BEAMS, 81)] * 2 + [(2, 7, BEAMS, 81)]
@@ -130,12 +136,38 @@ def test_loader_batches_fresh_noise_and_determinism(dataset, rng):
     assert len({fp[k].tobytes() for k in range(7)}) > 1
 
 
+def test_fast_sampler_draws_the_gaussian_distribution(dataset, rng):
+    """The nearest lookup draws through a FingerprintSampler: exactly the thresholded PDP rows
+    without noise, and the Gaussian tail probabilities with it (as the Gaussian-noise path)."""
+    t = _trajectories(rng, n=40, length=6)
+    source = grid_pdp(dataset, bins=FEATURE_BINS)
+    pdp = source.pdp_at(t.positions)
+    exact = SequenceLoader(source, t, batch_size=40, sigma_db=0.0, threshold_dbm=-100.0, shuffle=False)
+    assert exact.sampler is not None and exact.sampler.bins == (1, 82)
+    bits = next(iter(exact))[0]
+    assert np.array_equal(bits, (pdp >= -100.0).astype(np.float32))
+    # one static user repeated: the fraction of ones per entry against Q((threshold - PDP) / sigma)
+    static = Trajectories(
+        np.full((3000, 3, 2), [30.0, 40.0]), np.zeros(3000), np.arange(3000), np.zeros((3000, 2))
+    )
+    want = detection_probability(source.pdp_at(static.positions[:1, :1])[0, 0], 6.0, -100.0)
+    for fast in (True, False):
+        loader = SequenceLoader(
+            source, static, batch_size=3000, sigma_db=6.0, threshold_dbm=-100.0, fast=fast
+        )
+        assert (loader.sampler is not None) == fast
+        got = next(iter(loader))[0].reshape(-1, BEAMS, 81).mean(axis=0)
+        assert np.abs(got - want).max() < 0.02  # 9000 draws: 4.5 standard errors at p = 1/2
+    # interpolated PDPs have no grid row: Gaussian noise on them
+    assert SequenceLoader(grid_pdp(dataset, method="linear", bins=FEATURE_BINS), t).sampler is None
+
+
 def test_loader_bad_parameters(dataset, rng):
     t = _trajectories(rng)
     with pytest.raises(TrajectoryError, match="batch size"):
-        SequenceLoader(GridPdp.from_dataset(dataset), t, batch_size=0)
+        SequenceLoader(grid_pdp(dataset), t, batch_size=0)
     with pytest.raises(TrajectoryError, match="sigma"):
-        SequenceLoader(GridPdp.from_dataset(dataset), t, sigma_db=-1.0)
+        SequenceLoader(grid_pdp(dataset), t, sigma_db=-1.0)
     with pytest.raises(TrajectoryError, match="does not fit"):
         GridPdp(GRID, np.zeros((5, 2, 3)))
 

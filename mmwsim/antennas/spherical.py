@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unit_vector", "theta_hat", "phi_hat", "spherical_basis", "angles_of", "POLARISATIONS"]
+# One definition for antennas and paths: the tracer's Jones matrices act on these same vectors.
+from ..tracer.paths import POLARISATIONS
 
-POLARISATIONS = {"V": np.array([1.0, 0.0]), "H": np.array([0.0, 1.0])}
-"""Unit field vectors in the (theta_hat, phi_hat) basis: V is theta_hat, H is phi_hat."""
+__all__ = ["unit_vector", "theta_hat", "phi_hat", "spherical_basis", "angles_of", "POLARISATIONS"]
 
 
 def unit_vector(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:

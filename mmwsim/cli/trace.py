@@ -19,7 +19,7 @@ _TABLE_LIMIT = 20  # receivers printed in full; more get a summary
 def register(sub) -> None:
     p = sub.add_parser("trace", help="trace the specular paths from a transmitter to receivers")
     p.add_argument("scene", help="catalogue name (default, manhattan:seed=3, ...) or a .toml/.xml/mesh file")
-    p.add_argument("--tx", required=True, help="transmitter position X,Y,Z in metres")
+    p.add_argument("--tx", help="transmitter position X,Y,Z in metres (default: the scene's)")
     rx = p.add_mutually_exclusive_group(required=True)
     rx.add_argument("--rx", action="append", help="receiver position X,Y,Z in metres (repeatable)")
     rx.add_argument("--rx-file", help="CSV file of receivers with the header x,y,z")
@@ -66,7 +66,7 @@ def _run(args) -> int:
     from ..tracer.record import log_candidates, log_paths
     from . import parse_vector
 
-    tx = np.array(parse_vector(args.tx, 3, "--tx"))
+    tx = np.array(parse_vector(args.tx, 3, "--tx")) if args.tx else None
     if args.rx_file:
         rx = read_receivers(args.rx_file)
     else:
@@ -81,6 +81,10 @@ def _run(args) -> int:
             if not t.parent.is_dir() or not os.access(t.parent, os.W_OK):
                 raise MmwsimError(f"{flag} {t}: folder {t.parent} does not exist or is not writable")
     scene = load_scene(args.scene)
+    if tx is None:
+        if scene.transmitter is None:
+            raise MmwsimError(f"scene {scene.name!r} has no transmitter; give --tx X,Y,Z")
+        tx = scene.transmitter.array
     scene.check_transmitter(tx)
     outside = ~scene.outdoors(rx)
     if outside.any():

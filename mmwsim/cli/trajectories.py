@@ -46,8 +46,9 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--scene",
-        help="scene (catalogue name or file) when the data set does not name one; with it, a missing "
-        "DATASET folder is created holding only the trajectories",
+        help="scene (catalogue name or file): for a data set, where to load its scene from if not from "
+        "the name it stores (it must be the same scene); for a missing DATASET folder, the scene of a new "
+        "store holding only trajectories",
     )
     p.add_argument("--rrd", help="also write a Rerun recording of the trajectories (.rrd)")
     p.add_argument("--show", type=int, default=200, metavar="N", help="trajectories shown in the recording")
@@ -77,49 +78,37 @@ def _overrides(items: list[str]) -> dict:
 
 
 def _open(args):
-    """Scene, coverage mask and store path of DATASET (adapter to mmwsim.dataset)."""
+    """The scene, the data set (None for a trajectory-only store) and the store path of DATASET."""
+    from ..dataset import Dataset
+    from ..dataset.store import partial_path
     from ..scene import load_scene
-    from ..trajectories import CoverageMask
+    from ..trajectories import is_trajectory_store
 
     path = Path(args.dataset)
-    scene = load_scene(args.scene) if args.scene else None
-    if not path.exists():
-        if scene is None:
+    if not path.exists() or is_trajectory_store(path):
+        if partial_path(path).exists():
+            raise MmwsimError(
+                f"{path}: the data set is not finished ({partial_path(path).name}); "
+                "complete it with mmwsim generate --resume"
+            )
+        if args.scene is None:
+            if path.exists():
+                raise MmwsimError(f"{path}: holds trajectories only (no data set); give --scene")
             raise MmwsimError(f"{path}: data set not found (give --scene to create a trajectory-only store)")
-        return scene, None, path
-    if not (path / "zarr.json").exists():
-        raise MmwsimError(f"{path}: not a data set (no zarr.json)")
+        return load_scene(args.scene), None, path
+    ds = Dataset.open(path)
     try:
-        from ..dataset import Dataset  # type: ignore[attr-defined]
-    except ImportError:
-        Dataset = None
-    coverage = None
-    if Dataset is not None:
-        try:
-            ds = Dataset.open(path)
-        except MmwsimError:
-            if scene is None:
-                raise
-            ds = None
-        if ds is not None:
-            if scene is None:
-                scene = getattr(ds, "scene", None)
-                if callable(scene):
-                    scene = scene()
-            if scene is None and getattr(getattr(ds, "config", None), "scene", None):
-                # The resolved generate config names the scene and the transmitter it was traced with.
-                cfg = ds.config
-                scene = load_scene(cfg.scene, transmitter=getattr(cfg, "transmitter", None))
-            if getattr(ds, "valid", None) is not None:
-                coverage = CoverageMask(ds.grid, ds.valid)
-    if scene is None:
-        raise MmwsimError(f"{path}: cannot tell the data set's scene; give --scene")
-    return scene, coverage, path
+        scene = ds.scene(args.scene)
+    except MmwsimError as e:
+        if args.scene is not None:
+            raise
+        raise MmwsimError(f"{path}: cannot load the data set's scene: {e} (give --scene)") from None
+    return scene, ds, path
 
 
 def _run(args) -> int:
     from ..recording import Recording
-    from ..trajectories import generate, log_trajectories, split, write_trajectories
+    from ..trajectories import generate, generate_for_dataset, log_trajectories, split, write_trajectories
     from ..trajectories.splits import check_region
     from . import parse_vector
 
@@ -138,35 +127,34 @@ def _run(args) -> int:
         "static": args.static,
     }
     models = _overrides(args.set)
-    scene, coverage, path = _open(args)
-    if region is not None:
-        (x0, y0), (x1, y1) = scene.receivers.bounds
-        if region[2] <= x0 or region[0] >= x1 or region[3] <= y0 or region[1] >= y1:
-            raise MmwsimError(
-                f"--holdout-region {args.holdout_region}: lies outside the area {x0:g},{y0:g},{x1:g},{y1:g}"
-            )
-    trajectories = generate(
-        scene,
-        counts,
-        args.length,
-        args.seed,
-        rate_hz=args.rate,
-        coverage=coverage,
-        vehicles_on_streets=args.streets,
-        models=models,
-    )
+    scene, ds, path = _open(args)
+    (x0, y0), (x1, y1) = scene.receivers.bounds if ds is None else ds.grid.bounds
+    if region is not None and (region[2] <= x0 or region[0] >= x1 or region[3] <= y0 or region[1] >= y1):
+        raise MmwsimError(
+            f"--holdout-region {args.holdout_region}: lies outside the area {x0:g},{y0:g},{x1:g},{y1:g}"
+        )
+    options = dict(rate_hz=args.rate, vehicles_on_streets=args.streets, models=models)
+    if ds is None:
+        trajectories = generate(scene, counts, args.length, args.seed, **options)
+    else:
+        trajectories = generate_for_dataset(ds, counts, args.length, args.seed, scene=scene, **options)
     parts = split(trajectories, fractions, seed=args.seed, holdout_region=region)
+    write_trajectories(path if ds is None else ds, parts)
     if args.rrd:
         with Recording(
             args.rrd, "trajectories", families=("trajectories",), config=trajectories.attrs
         ) as rec:
             log_trajectories(rec, trajectories, scene, max_shown=args.show)
-    write_trajectories(path, parts)
     sizes = ", ".join(f"{name} {len(t)}" for name, t in parts.items())
-    held = int(parts["test"].holdout.sum())
-    print(f"wrote {len(trajectories)} trajectories of {args.length} steps to {path}/trajectories: {sizes}")
+    where = (
+        "the trajectory-only store" if ds is None else f"the data set ({int(ds.valid.sum())} valid points)"
+    )
+    print(
+        f"wrote {len(trajectories)} trajectories of {args.length} steps to {path}/trajectories "
+        f"in {where}: {sizes}"
+    )
     if region is not None:
-        print(f"hold-out region {region}: {held} trajectories, all in test")
+        print(f"hold-out region {region}: {int(parts['test'].holdout.sum())} trajectories, all in test")
     if args.rrd:
         print(f"wrote {args.rrd}")
     return 0

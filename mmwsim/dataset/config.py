@@ -77,6 +77,31 @@ class GenerateConfig(StrictModel):
     def hash(self) -> str:
         return content_hash(self)
 
+    def load_scene(self, spec: str | None = None):
+        """The scene this configuration was resolved from, with its transmitter.
+
+        Parameters
+        ----------
+        spec : str, optional
+            Catalogue name or scene file to load instead of the stored ``scene`` (e.g. a file
+            that has moved); it must hold the same scene.
+
+        Raises
+        ------
+        MmwsimError
+            If the scene's triangles, objects, materials or frequency differ from the ones
+            the configuration was resolved from (``scene_sha256``).
+        """
+        from ..scene import load_scene
+
+        name = self.scene if spec is None else str(spec)
+        scene = load_scene(name, transmitter=self.transmitter)
+        if scene_fingerprint(scene) != self.scene_sha256:
+            raise MmwsimError(
+                f"scene {name!r} is not the one this data set was generated from (or has changed since)"
+            )
+        return scene
+
 
 def scene_fingerprint(scene) -> str:
     """SHA-256 of a scene's triangles, objects and materials (detects an edited scene file)."""

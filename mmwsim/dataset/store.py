@@ -17,7 +17,8 @@ Layout (all arrays zstd-compressed)::
     grid/paths/objects     (n_slots, K) int32 scene object per interaction, -1 pads
     grid/paths/faces       (n_slots, K) int32 triangle per interaction, -1 pads
     grid/paths/points      (n_slots, K, 3) float32 interaction points, metres
-    trajectories/<split>   added by mmwsim.trajectories
+    trajectories/<split>   added later by ``mmwsim trajectories`` (mmwsim.trajectories.store), as one
+                           atomic rename; not part of the content hash, which covers the generation
 
 Each tile's paths start on a chunk boundary of the path arrays (the slots after
 them up to the next boundary stay unused), so a tile's writes never touch another
@@ -41,7 +42,7 @@ from ..scene import ReceiverGrid
 from ..tracer.paths import Paths
 from .config import GenerateConfig
 
-__all__ = ["FORMAT", "Dataset", "StoreWriter", "partial_path"]
+__all__ = ["FORMAT", "Dataset", "StoreWriter", "nearest_index", "partial_path"]
 
 FORMAT = "mmwsim-dataset"
 FORMAT_VERSION = 1
@@ -241,6 +242,25 @@ class StoreWriter:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
 
+def nearest_index(grid: ReceiverGrid, xy: np.ndarray) -> np.ndarray:
+    """Flat index (ix + nx iy) of the grid point nearest to each position.
+
+    Parameters
+    ----------
+    grid : ReceiverGrid
+    xy : (..., 2) or (..., 3) float
+        Positions, metres (z ignored); points off the grid snap to its edge.
+
+    Returns
+    -------
+    (...) int64
+    """
+    p = np.asarray(xy, dtype=np.float64)
+    ix = np.clip(np.rint((p[..., 0] - grid.origin[0]) / grid.spacing), 0, grid.shape[0] - 1).astype(np.int64)
+    iy = np.clip(np.rint((p[..., 1] - grid.origin[1]) / grid.spacing), 0, grid.shape[1] - 1).astype(np.int64)
+    return ix + grid.shape[0] * iy
+
+
 def _stored_hash(path: Path) -> str | None:
     try:
         meta = json.loads((Path(path) / "zarr.json").read_text())
@@ -339,11 +359,7 @@ class Dataset:
         -------
         (...) int64
         """
-        p = np.asarray(xy, dtype=np.float64)
-        g = self.grid
-        ix = np.clip(np.rint((p[..., 0] - g.origin[0]) / g.spacing), 0, g.shape[0] - 1).astype(np.int64)
-        iy = np.clip(np.rint((p[..., 1] - g.origin[1]) / g.spacing), 0, g.shape[1] - 1).astype(np.int64)
-        return ix + g.shape[0] * iy
+        return nearest_index(self.grid, xy)
 
     def paths(self, index: np.ndarray | int) -> Paths:
         """The stored paths of receivers ``index`` (re-traced nothing), as :class:`Paths`.
@@ -374,6 +390,25 @@ class Dataset:
             objects=cols["objects"],
             points=cols["points"].astype(np.float64),
         )
+
+    # ------------------------------------------------------------------ scene and trajectories
+    def scene(self, spec: str | None = None):
+        """The scene the data set was generated from, with its transmitter (see
+        :meth:`GenerateConfig.load_scene`; ``spec`` loads it from elsewhere, checked to be the same)."""
+        return GenerateConfig.model_validate(self.config).load_scene(spec)
+
+    @property
+    def trajectory_splits(self) -> list[str]:
+        """Names of the trajectory splits stored in the data set (empty if none)."""
+        from ..trajectories.store import list_splits
+
+        return list_splits(self.path)
+
+    def trajectories(self, split: str):
+        """The stored trajectory split ``split`` as :class:`mmwsim.trajectories.Trajectories`."""
+        from ..trajectories.store import read_trajectories
+
+        return read_trajectories(self.path, split)
 
     # ------------------------------------------------------------------ fingerprints
     def sampler(self, sigma_db: float | None = None, threshold_dbm: float | None = None, bins=None):

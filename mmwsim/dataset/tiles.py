@@ -71,14 +71,10 @@ def _context(cfg: GenerateConfig, config_json: str):
     key = cfg.hash()
     ctx = _CONTEXT.get(key)
     if ctx is None:
-        from ..errors import MmwsimError
-        from ..scene import ReceiverGrid, load_scene
+        from ..scene import ReceiverGrid
         from ..tracer import Tracer
-        from .config import scene_fingerprint
 
-        scene = load_scene(cfg.scene, transmitter=cfg.transmitter)
-        if scene_fingerprint(scene) != cfg.scene_sha256:
-            raise MmwsimError(f"scene {cfg.scene!r} has changed since this data set was configured")
+        scene = cfg.load_scene()
         grid = ReceiverGrid(cfg.grid_origin, cfg.grid_spacing, cfg.grid_shape, cfg.grid_height)
         tracer = Tracer(scene, np.asarray(cfg.transmitter), cfg.max_reflections, cfg.n_rays)
         ctx = (scene, grid, tracer, make_codebook_from(cfg), receive_pattern(cfg.rx_gain_dbi))

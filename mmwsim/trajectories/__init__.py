@@ -1,10 +1,15 @@
 """User trajectories (pedestrian, hybrid, vehicle, static), their splits and fingerprint sequences.
 
-Typical use::
+Typical use, with a data set made by ``mmwsim generate``::
 
-    from mmwsim.trajectories import generate, split
-    t = generate(scene, {"pedestrian": 1000, "vehicle": 500}, length=7, seed=0)
-    parts = split(t, holdout_region=(250, 250, 350, 350))
+    from mmwsim.dataset import Dataset
+    from mmwsim.trajectories import SequenceLoader, generate_for_dataset, split, write_trajectories
+
+    ds = Dataset.open("default.zarr")
+    t = generate_for_dataset(ds, {"pedestrian": 1000, "vehicle": 500}, length=7, seed=0)
+    write_trajectories(ds, split(t, holdout_region=(250, 250, 350, 350)))
+    for bits, positions in SequenceLoader.from_dataset(ds, "train", batch_size=64):
+        ...  # bits (64, 7, 32, 81) with fresh noise, positions (64, 7, 2)
 """
 
 from .errors import TrajectoryError
@@ -17,11 +22,11 @@ from .fingerprints import (
     pdp_sequences,
 )
 from .freespace import CoverageMask, FreeSpace, nearest_grid_index
-from .generate import MAX_LENGTH, MIN_LENGTH, check_length, generate, generate_kind
+from .generate import MAX_LENGTH, MIN_LENGTH, check_length, generate, generate_for_dataset, generate_kind
 from .motion import EVENT_NAMES, HYBRID, KINDS, MODELS, PEDESTRIAN, STATIC, VEHICLE, MotionModel, motion_model
 from .record import log_trajectories
 from .splits import SPLITS, split, touches_region
-from .store import list_splits, read_trajectories, write_trajectories
+from .store import is_trajectory_store, list_splits, read_trajectories, write_trajectories
 from .streets import StreetNetwork
 from .trajectories import Trajectories
 
@@ -48,7 +53,9 @@ __all__ = [
     "VEHICLE",
     "check_length",
     "generate",
+    "generate_for_dataset",
     "generate_kind",
+    "is_trajectory_store",
     "list_splits",
     "log_trajectories",
     "motion_model",

@@ -12,12 +12,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from ..dataset.store import nearest_index
 from .errors import TrajectoryError
 
 if TYPE_CHECKING:
+    from ..dataset import Dataset
     from ..scene import ReceiverGrid, Scene
 
-__all__ = ["FreeSpace", "CoverageMask"]
+__all__ = ["FreeSpace", "CoverageMask", "nearest_grid_index"]
+
+nearest_grid_index = nearest_index
+"""(...,) int64 flat index (ix + nx iy) of the grid point nearest to each (..., 2) position
+(the data set's own lookup, :meth:`mmwsim.dataset.Dataset.nearest`)."""
 
 
 class CoverageMask:
@@ -38,6 +44,11 @@ class CoverageMask:
         self.grid = grid
         self.valid = valid
 
+    @classmethod
+    def from_dataset(cls, dataset: Dataset) -> CoverageMask:
+        """The data set's validity mask (outdoors and detected) on its grid."""
+        return cls(dataset.grid, dataset.valid)
+
     def nearest_index(self, points: np.ndarray) -> np.ndarray:
         """(n,) int64 index of the nearest grid point of each (n, 2) position (clipped to the grid)."""
         return nearest_grid_index(self.grid, points)
@@ -45,15 +56,6 @@ class CoverageMask:
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """(n,) bool: whether the nearest grid point of each (n, 2) position is valid."""
         return self.valid[self.nearest_index(points)]
-
-
-def nearest_grid_index(grid: ReceiverGrid, points: np.ndarray) -> np.ndarray:
-    """(...,) int64 flat index (ix + nx iy) of the grid point nearest to each (..., 2) position."""
-    p = np.asarray(points, dtype=np.float64)
-    nx, ny = grid.shape
-    ix = np.clip(np.rint((p[..., 0] - grid.origin[0]) / grid.spacing), 0, nx - 1).astype(np.int64)
-    iy = np.clip(np.rint((p[..., 1] - grid.origin[1]) / grid.spacing), 0, ny - 1).astype(np.int64)
-    return ix + nx * iy
 
 
 class FreeSpace:

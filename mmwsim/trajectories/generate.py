@@ -24,9 +24,10 @@ from .streets import StreetNetwork
 from .trajectories import Trajectories
 
 if TYPE_CHECKING:
+    from ..dataset import Dataset
     from ..scene import Scene
 
-__all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_kind", "check_length"]
+__all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_for_dataset", "generate_kind", "check_length"]
 
 MIN_LENGTH = 3
 MAX_LENGTH = 30
@@ -308,3 +309,46 @@ def generate(
         "bounds": np.asarray(bounds, dtype=float).tolist(),
     }
     return Trajectories.concatenate(parts, attrs)
+
+
+def generate_for_dataset(
+    dataset: Dataset,
+    counts: dict[str, int],
+    length: int,
+    seed: int,
+    scene: Scene | None = None,
+    **options,
+) -> Trajectories:
+    """Trajectories in a data set's scene, every sample nearest to a valid grid point.
+
+    The area is the data set's grid (which may be coarser than the scene's own), the
+    coverage its validity mask (outdoors and detected), and the buildings those of the scene
+    it was generated from (:meth:`mmwsim.dataset.Dataset.scene`).
+
+    Parameters
+    ----------
+    dataset : Dataset
+    counts, length, seed
+        As in :func:`generate`.
+    scene : Scene, optional
+        The data set's scene if already loaded (default: loaded from the data set's config).
+    **options
+        ``rate_hz``, ``vehicles_on_streets``, ``models``, ``street_half_width`` of :func:`generate`.
+
+    Returns
+    -------
+    Trajectories
+        With ``attrs["dataset"]``, the content hash of the data set they belong to, and
+        ``attrs["scene"]``, the scene as the data set names it.
+    """
+    t = generate(
+        dataset.scene() if scene is None else scene,
+        counts,
+        length,
+        seed,
+        coverage=CoverageMask.from_dataset(dataset),
+        free_space_bounds=dataset.grid.bounds,
+        **options,
+    )
+    t.attrs.update(scene=dataset.config["scene"], dataset=dataset.content_hash)
+    return t

@@ -1,5 +1,11 @@
 """Trajectories in the data set's zarr store: one group ``trajectories/<split>`` per split.
 
+The store is a complete data set (:class:`mmwsim.dataset.Dataset`), or, for trajectories
+without PDPs, a trajectory-only store (a zarr group marked ``attrs["mmwsim"]["format"] =
+"mmwsim-trajectories"``) created on first write. The trajectories group is not part of the
+data set's content hash, which covers its generation only, so adding or replacing
+trajectories leaves ``Dataset.open`` and ``mmwsim generate --resume`` as they were.
+
 Each split group holds ``positions`` (n, L, 2) float64 metres, ``kind`` (n,) uint8 (index into
 ``attrs["kinds"]``), ``ids`` (n,) int64, ``events`` (n, L-1) int8 and ``holdout`` (n,) bool, and
 in its attributes the provenance (seed, rate, motion models, split parameters) with a content
@@ -18,39 +24,98 @@ from typing import Any
 import numpy as np
 import zarr
 from zarr.codecs import ZstdCodec
+from zarr.storage import LocalStore
 
 from ..config import content_hash
+from ..dataset import Dataset
+from ..dataset.store import FORMAT as DATASET_FORMAT
 from .errors import TrajectoryError
 from .motion import EVENT_NAMES, KINDS
 from .trajectories import Trajectories
 
-__all__ = ["GROUP", "write_trajectories", "read_trajectories", "list_splits", "store_root"]
+__all__ = [
+    "GROUP",
+    "TRAJECTORY_FORMAT",
+    "is_trajectory_store",
+    "list_splits",
+    "read_trajectories",
+    "store_root",
+    "write_trajectories",
+]
 
 GROUP = "trajectories"
+TRAJECTORY_FORMAT = "mmwsim-trajectories"
 _ARRAYS = ("positions", "kind", "ids", "events", "holdout")
 
+Store = str | os.PathLike | zarr.Group | Dataset
 
-def store_root(store: str | os.PathLike | zarr.Group) -> Path:
-    """Folder of a local zarr store given as a path or an open root group."""
+
+def store_root(store: Store) -> Path:
+    """Folder of a local zarr store given as a path, a :class:`Dataset` or an open root group."""
+    if isinstance(store, Dataset):
+        return store.path
     if isinstance(store, zarr.Group):
-        root = getattr(store.store, "root", None)
-        if root is None:
+        if not isinstance(store.store, LocalStore):
             raise TrajectoryError("trajectories can only be stored in a local (folder) zarr store")
-        return Path(root) / store.path
+        return Path(store.store.root) / store.path
     return Path(store)
+
+
+def _format(root: Path) -> str | None:
+    """``attrs["mmwsim"]["format"]`` of the zarr group at ``root`` (None if unmarked)."""
+    try:
+        return json.loads((root / "zarr.json").read_text())["attributes"]["mmwsim"]["format"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def is_trajectory_store(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a trajectory-only store (trajectories written without a data set)."""
+    root = Path(path)
+    return (root / "zarr.json").is_file() and _format(root) == TRAJECTORY_FORMAT
+
+
+def _prepare(store: Store, splits: dict[str, Trajectories]) -> Path:
+    """Check that ``store`` may take these trajectories (creating a trajectory-only store if
+    missing) and return its folder."""
+    root = store_root(store)
+    if not root.exists():
+        root.parent.mkdir(parents=True, exist_ok=True)
+        zarr.open_group(root, mode="w", zarr_format=3).attrs["mmwsim"] = {"format": TRAJECTORY_FORMAT}
+        return root
+    if not (root / "zarr.json").is_file():
+        raise TrajectoryError(f"{root}: not a zarr store (no zarr.json)")
+    kind = _format(root)
+    if kind == TRAJECTORY_FORMAT:
+        return root
+    if kind != DATASET_FORMAT:
+        raise TrajectoryError(f"{root}: neither an mmwsim data set nor a trajectory store")
+    ds = store if isinstance(store, Dataset) else Dataset.open(root)  # refuses an incomplete data set
+    for name, t in splits.items():
+        made_for = t.attrs.get("dataset")
+        if made_for is not None and made_for != ds.content_hash:
+            raise TrajectoryError(
+                f"{root}: split {name!r} was generated for another data set "
+                f"(content hash {str(made_for)[:12]}, this one {ds.content_hash[:12]})"
+            )
+    return root
 
 
 def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
-def write_trajectories(store: str | os.PathLike | zarr.Group, splits: dict[str, Trajectories]) -> Path:
-    """Replace the ``trajectories`` group of a zarr store with these splits.
+def write_trajectories(store: Store, splits: dict[str, Trajectories]) -> Path:
+    """Replace the ``trajectories`` group of a data set (or trajectory-only store) with these splits.
+
+    The group is written next to its place and renamed into it, so readers see the old
+    splits or the new ones, never a mixture; same splits give the same bytes.
 
     Parameters
     ----------
-    store : path or zarr.Group
-        Root of the data set (a folder zarr store); created if missing.
+    store : Dataset, path or zarr.Group
+        A complete data set, a trajectory-only store, or a missing folder (a trajectory-only
+        store is created there).
     splits : dict
         Split name -> Trajectories.
 
@@ -58,11 +123,15 @@ def write_trajectories(store: str | os.PathLike | zarr.Group, splits: dict[str, 
     -------
     Path
         Folder of the written group.
+
+    Raises
+    ------
+    TrajectoryError
+        If the folder is another kind of zarr store, or a split was generated for another
+        data set (its ``attrs["dataset"]`` content hash); an incomplete data set raises
+        :class:`~mmwsim.errors.MmwsimError` from ``Dataset.open``.
     """
-    root = store_root(store)
-    if root.exists() and not (root / "zarr.json").exists():
-        raise TrajectoryError(f"{root}: not a zarr store (no zarr.json)")
-    zarr.open_group(root, mode="a")
+    root = _prepare(store, splits)
     final = root / GROUP
     tmp = root / f".{GROUP}.partial"
     shutil.rmtree(tmp, ignore_errors=True)
@@ -107,7 +176,7 @@ def write_trajectories(store: str | os.PathLike | zarr.Group, splits: dict[str, 
     return final
 
 
-def list_splits(store: str | os.PathLike | zarr.Group) -> list[str]:
+def list_splits(store: Store) -> list[str]:
     """Names of the stored splits (empty if the store holds no trajectories)."""
     root = store_root(store)
     if not (root / GROUP / "zarr.json").exists():
@@ -115,7 +184,7 @@ def list_splits(store: str | os.PathLike | zarr.Group) -> list[str]:
     return list(zarr.open_group(root / GROUP, mode="r").attrs.get("splits", []))
 
 
-def read_trajectories(store: str | os.PathLike | zarr.Group, split: str) -> Trajectories:
+def read_trajectories(store: Store, split: str) -> Trajectories:
     """Read one split back.
 
     Returns

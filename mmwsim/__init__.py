@@ -21,8 +21,8 @@ from .constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
 from .dataset import Dataset, GenerateConfig
 from .dataset import generate as generate_dataset
 from .errors import MaterialRangeWarning, MmwsimError
-from .materials import ITU_MATERIALS, Material, get_material, material_names
 from .fingerprints import FingerprintSampler, fingerprints, power_delay_profile
+from .materials import ITU_MATERIALS, Material, get_material, material_names
 from .recording import Entity, Recording, Timeline
 from .scene import (
     ReceiverGrid,
@@ -35,6 +35,19 @@ from .scene import (
     load_toml,
 )
 from .tracer import Paths, Tracer, trace
+from .trajectories import (
+    GridPdp,
+    MotionModel,
+    SequenceLoader,
+    StreetNetwork,
+    TracedPdp,
+    Trajectories,
+    TrajectoryError,
+    read_trajectories,
+    split,
+    write_trajectories,
+)
+from .trajectories import generate as generate_trajectories
 
 __all__ = [
     "Codebook",
@@ -49,6 +62,17 @@ __all__ = [
     "RotatingHorn",
     "ShortDipole",
     "Tracer",
+    "GridPdp",
+    "MotionModel",
+    "SequenceLoader",
+    "StreetNetwork",
+    "TracedPdp",
+    "Trajectories",
+    "TrajectoryError",
+    "read_trajectories",
+    "split",
+    "write_trajectories",
+    "generate_trajectories",
     "fingerprints",
     "generate_dataset",
     "make_codebook",

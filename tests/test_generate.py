@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mmwsim.cli import main
@@ -123,3 +124,27 @@ def test_cli_bad_inputs(tmp_path, capsys):
     assert not (tmp_path / "nope").exists()
     assert "--spacing" in one_error_line(capsys, ["generate", "free_space", "--spacing", "-1"])
     assert "--workers" in one_error_line(capsys, ["generate", "free_space", "--workers", "0"])
+
+
+def test_cli_tx_for_a_scene_without_transmitter(tmp_path, monkeypatch, capsys):
+    import trimesh
+
+    import mmwsim.tracer
+    from mmwsim.cli import main
+    from mmwsim.dataset import Dataset
+    from scenes.layout import Building, building_mesh, ground_mesh
+
+    monkeypatch.setattr(mmwsim.tracer, "DEFAULT_RAYS", 100_000)
+    mesh = tmp_path / "city.ply"
+    trimesh.util.concatenate(
+        [ground_mesh(0, 0, 60, 60), building_mesh([Building(20, 20, 40, 40, 10)])]
+    ).export(mesh)
+    out = tmp_path / "city.zarr"
+    assert main(["generate", str(mesh), "--spacing", "10", "--out", str(out), "--quiet"]) == 2
+    assert "has no transmitter" in capsys.readouterr().err and not out.exists()
+    assert (
+        main(["generate", str(mesh), "--tx", "10,10,8", "--spacing", "10", "--out", str(out), "--quiet"]) == 0
+    )
+    ds = Dataset.open(out)
+    assert tuple(ds.config["transmitter"]) == (10.0, 10.0, 8.0)
+    assert ds.valid.sum() > 0 and not ds.valid[ds.nearest(np.array([[30.0, 30.0]]))].any()

@@ -11,6 +11,7 @@ def register(sub) -> None:
         "and the paths to a zarr store; resumable, same bytes for any number of workers.",
     )
     p.add_argument("scene", help="catalogue name (default, manhattan:seed=3, ...) or a scene file")
+    p.add_argument("--tx", help="transmitter position X,Y,Z in metres (default: the scene's)")
     p.add_argument("--out", help="output store directory (default: <scene name>.zarr)")
     p.add_argument("--spacing", type=float, help="receiver spacing in metres (default: the scene's grid)")
     p.add_argument("--max-reflections", type=int, default=3, help="reflections per path (default 3)")
@@ -35,6 +36,7 @@ def _generate(args) -> int:
     import time
 
     from ..dataset import Dataset, generate
+    from . import parse_vector
 
     out = args.out or _default_out(args.scene)
     t0 = time.perf_counter()
@@ -49,6 +51,7 @@ def _generate(args) -> int:
         rrd=args.rrd,
         progress=not args.quiet,
         tile_size=args.tile_size,
+        transmitter=parse_vector(args.tx, 3, "--tx") if args.tx else None,
     )
     ds = Dataset.open(path)
     print(f"wrote {path}: {ds!r} in {time.perf_counter() - t0:.1f} s")

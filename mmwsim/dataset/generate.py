@@ -34,6 +34,7 @@ def generate(
     band_limited: bool = False,
     tile_size: int = DEFAULT_TILE,
     path_chunk: int = DEFAULT_PATH_CHUNK,
+    transmitter: tuple[float, float, float] | None = None,
 ) -> Path:
     """Generate the data set of ``scene`` into the directory ``out``.
 
@@ -56,6 +57,8 @@ def generate(
         Also write a Rerun recording of the result.
     progress : bool
         Show a tqdm progress bar.
+    transmitter : (3,) float, optional
+        Transmitter position, metres, instead of the scene's (needed for scenes without one).
 
     Returns
     -------
@@ -69,7 +72,7 @@ def generate(
     out = Path(out)
     if rrd is not None and Path(rrd).suffix != ".rrd":
         raise MmwsimError(f"{rrd}: a recording must end in .rrd")
-    scene_obj = load_scene(scene)
+    scene_obj = load_scene(scene, transmitter=transmitter)
     cfg = resolve_config(
         scene,
         scene_obj,

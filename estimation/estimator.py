@@ -1,0 +1,170 @@
+"""A trained network with its normalisation and configuration: what a run folder holds."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
+from .data import Normaliser
+from .errors import EstimationError
+from .models import MODELS, build_network, count_parameters
+
+__all__ = ["TrainConfig", "Estimator", "MODEL_FILE"]
+
+MODEL_FILE = "model.pt"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run (stored in the run folder and every checkpoint).
+
+    Attributes
+    ----------
+    model : one of ``tn lstm gru rnn tcn conv1d``
+    task : ``tracking`` or ``forecasting``
+    sigma : float, dB; noise of the training fingerprints
+    epochs, batch_size, lr, dropout : the paper's optimisation settings
+    patience : epochs without validation improvement before early stopping
+    lr_patience, lr_factor : ReduceLROnPlateau settings
+    min_length, max_length : tracking crops of T steps, T uniform in this range (max 0 = trajectory length)
+    t_obs, horizon : forecasting: observed steps and predicted steps
+    seed : int
+    options : extra constructor arguments of the network (e.g. ``{"d": 64}``)
+    """
+
+    model: str
+    task: str = "tracking"
+    sigma: float = 6.0
+    epochs: int = 100
+    batch_size: int = 64
+    lr: float = 1e-3
+    dropout: float = 0.01
+    patience: int = 8
+    lr_patience: int = 3
+    lr_factor: float = 0.5
+    min_length: int = 2
+    max_length: int = 0
+    t_obs: int = 5
+    horizon: int = 2
+    seed: int = 0
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise EstimationError(f"unknown model {self.model!r} (choose from {', '.join(MODELS)})")
+        if self.task not in ("tracking", "forecasting"):
+            raise EstimationError(f"unknown task {self.task!r} (tracking, forecasting)")
+        for name in ("epochs", "batch_size", "min_length", "t_obs", "horizon"):
+            if int(getattr(self, name)) < 1:
+                raise EstimationError(f"{name} must be at least 1 (got {getattr(self, name)})")
+        if self.sigma < 0 or self.lr <= 0 or not 0 <= self.dropout < 1:
+            raise EstimationError(f"bad sigma/lr/dropout ({self.sigma}, {self.lr}, {self.dropout})")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> TrainConfig:
+        data = json.loads(text)
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise EstimationError(f"unknown training settings {sorted(unknown)}")
+        return cls(**data)
+
+    def horizon_out(self) -> int:
+        return self.horizon if self.task == "forecasting" else 1
+
+
+class Estimator(nn.Module):
+    """Network plus normalisation: fingerprint bits in, positions in metres out.
+
+    Parameters
+    ----------
+    config : TrainConfig
+    n_beams, n_bins : int
+        Fingerprint shape ``M x N_s``.
+    normaliser : Normaliser
+    """
+
+    def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
+        super().__init__()
+        self.config, self.n_beams, self.n_bins, self.normaliser = config, n_beams, n_bins, normaliser
+        self.net = build_network(
+            config.model,
+            n_beams,
+            n_bins,
+            config.task,
+            config.horizon,
+            dropout=config.dropout,
+            **config.options,
+        )
+
+    @property
+    def name(self) -> str:
+        return self.config.model
+
+    @property
+    def n_parameters(self) -> int:
+        return count_parameters(self.net)
+
+    def forward(self, bits: torch.Tensor, y: torch.Tensor | None = None) -> torch.Tensor:
+        """Normalised output ``(B, T_out, 2)``; ``y`` (metres) enables teacher forcing where used."""
+        return self.net(bits, None if y is None else self.normaliser.to_unit(y))
+
+    @torch.no_grad()
+    def predict(self, bits: torch.Tensor) -> torch.Tensor:
+        """``bits (B, T, M, N_s)`` -> positions ``(B, T_out, 2)`` float32, metres."""
+        was = self.training
+        self.eval()
+        try:
+            return self.normaliser.to_metres(self.net(bits))
+        finally:
+            self.train(was)
+
+    def save(self, path: str | os.PathLike, extra: dict[str, Any] | None = None) -> None:
+        save_checkpoint(
+            path,
+            {
+                "format": MODEL_FORMAT,
+                "config": self.config.to_json(),
+                "n_beams": self.n_beams,
+                "n_bins": self.n_bins,
+                "normaliser": json.dumps(self.normaliser.as_dict()),
+                "state_dict": self.net.state_dict(),
+                **(extra or {}),
+            },
+        )
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any], where: str) -> Estimator:
+        try:
+            config = TrainConfig.from_json(state["config"])
+            norm = Normaliser(**json.loads(state["normaliser"]))
+            est = cls(config, int(state["n_beams"]), int(state["n_bins"]), norm)
+            est.net.load_state_dict(state["state_dict"])
+        except EstimationError as e:
+            raise EstimationError(f"{where}: {e}") from None
+        except (KeyError, TypeError, ValueError, RuntimeError) as e:
+            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise EstimationError(f"{where}: checkpoint does not fit its model ({msg[:160]})") from None
+        est.eval()
+        return est
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Estimator:
+        """Load from a model file or a run folder (its ``model.pt``)."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / MODEL_FILE
+        state = load_checkpoint(
+            path, MODEL_FORMAT, ("config", "n_beams", "n_bins", "normaliser", "state_dict")
+        )
+        return cls.from_state(state, str(path))

@@ -1,0 +1,257 @@
+"""Evaluation of trained runs and the classical baseline on held-out trajectories.
+
+All methods see the same noisy fingerprints: for each split and noise level the bits of the full
+trajectories are drawn once from a seeded generator, and every method and sequence length uses
+(crops of) those bits, so differences between methods are not differences in noise.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from .classical import KnnKalman
+from .data import SequenceSet, fingerprint_bits
+from .errors import EstimationError
+from .estimator import Estimator
+from .metrics import summarise_by_kind, trajectory_rmse
+
+__all__ = ["NetworkMethod", "KnnKalmanMethod", "Evaluation", "evaluate", "noisy_bits"]
+
+_BATCH = 512
+
+
+def noisy_bits(data: SequenceSet, sigma: float, generator: torch.Generator, chunk: int = 256) -> torch.Tensor:
+    """Fresh fingerprints of every step of every trajectory: ``(n, L, M, N_s)`` bool (1 byte each)."""
+    out = torch.empty((data.n, data.length, data.n_beams, data.n_bins), dtype=torch.bool)
+    for k in range(0, data.n, chunk):
+        pdp = data.grid_pdp[torch.from_numpy(data.index[k : k + chunk])]
+        out[k : k + chunk] = fingerprint_bits(pdp, sigma, data.threshold, generator).bool()
+    return out
+
+
+class NetworkMethod:
+    """A trained run as an evaluation method."""
+
+    def __init__(self, estimator: Estimator, name: str, train_seconds: float = float("nan"), epochs: int = 0):
+        self.est, self.name = estimator, name
+        cfg = estimator.config
+        self.task, self.t_obs, self.horizon = cfg.task, cfg.t_obs, cfg.horizon
+        self.n_parameters, self.train_seconds, self.epochs = estimator.n_parameters, train_seconds, epochs
+
+    def for_sigma(self, sigma: float, validation: SequenceSet | None) -> NetworkMethod:
+        return self
+
+    def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
+        """Predictions for inputs cropped to each length: ``{T_in: (pred (n, T_out, 2), seconds)}``."""
+        out = {}
+        for L in lengths:
+            t0 = time.perf_counter()
+            preds = [self.est.predict(bits[k : k + _BATCH, :L].float()) for k in range(0, len(bits), _BATCH)]
+            out[L] = (torch.cat(preds).numpy().astype(np.float64), time.perf_counter() - t0)
+        return out
+
+
+class KnnKalmanMethod:
+    """The classical baseline (:class:`~estimation.classical.KnnKalman`), fitted per noise level on
+    validation trajectories."""
+
+    name = "knn-kalman"
+    n_parameters = 0
+    train_seconds = 0.0
+    epochs = 0
+
+    def __init__(
+        self,
+        task: str = "tracking",
+        t_obs: int = 5,
+        horizon: int = 2,
+        fit_length: int = 7,
+        n_fit: int = 300,
+        seed: int = 0,
+    ):
+        self.task, self.t_obs, self.horizon = task, t_obs, horizon
+        self.fit_length, self.n_fit, self.seed = fit_length, n_fit, seed
+        self.model: KnnKalman | None = None
+        self.fitted: dict[float, dict[str, Any]] = {}
+
+    def for_sigma(self, sigma: float, validation: SequenceSet | None) -> KnnKalmanMethod:
+        if validation is None or validation.n == 0:
+            raise EstimationError("knn-kalman needs validation trajectories to fit its Kalman parameters")
+        m = KnnKalmanMethod(self.task, self.t_obs, self.horizon, self.fit_length, self.n_fit, self.seed)
+        m.fitted = self.fitted
+        m.model = KnnKalman(validation, sigma, self.task, self.horizon)
+        pick = np.random.default_rng(self.seed).permutation(validation.n)[: self.n_fit]
+        val = validation.subset(np.sort(pick))  # a random subset: splits may be ordered by kind
+        T = self.t_obs + self.horizon if self.task == "forecasting" else min(self.fit_length, val.length)
+        val = val.crop(0, T)
+        bits = noisy_bits(val, sigma, torch.Generator().manual_seed(self.seed + 99))
+        if self.task == "tracking":
+            fit = m.model.fit(bits, val.positions)
+        else:
+            fit = m.model.fit(bits[:, : self.t_obs], val.positions[:, self.t_obs :])
+        self.fitted[sigma] = fit
+        return m
+
+    def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
+        # Matching is per step: do it once over the longest crop and reuse it for every length.
+        assert self.model is not None
+        Lmax = max(lengths)
+        t0 = time.perf_counter()
+        z = self.model.matcher.match(bits[:, :Lmax])
+        per_step = (time.perf_counter() - t0) / Lmax
+        out = {}
+        for L in lengths:
+            t1 = time.perf_counter()
+            pred = self.model.smooth(z[:, :L])
+            out[L] = (pred, per_step * L + time.perf_counter() - t1)
+        return out
+
+
+@dataclass
+class Evaluation:
+    """Results of :func:`evaluate`.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One per (method, split, sigma, task, length, kind): ``n, mean, median, p95`` (metres).
+    cost : dict method -> dict
+        ``parameters``, ``train_seconds``, ``epochs``, ``predict_seconds`` (per 1000 sequences of
+        ``table_length`` steps).
+    examples : dict split -> dict
+        ``true (k, L, 2)``, ``kind (k,)`` and per method ``(k, L, 2)`` tracking predictions of a few
+        trajectories at the first noise level, for the recording.
+    """
+
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    cost: dict[str, dict[str, Any]] = field(default_factory=dict)
+    examples: dict[str, dict[str, Any]] = field(default_factory=dict)
+    table_length: int = 7
+    fitted: dict[str, Any] = field(default_factory=dict)
+
+    def select(self, **where) -> list[dict[str, Any]]:
+        return [r for r in self.rows if all(r.get(k) == v for k, v in where.items())]
+
+
+def evaluate(
+    methods: list,
+    sets: dict[str, SequenceSet],
+    noises: list[float],
+    validation: SequenceSet | None,
+    lengths: list[int] | None = None,
+    table_length: int = 7,
+    max_trajectories: int | None = None,
+    n_examples: int = 4,
+    seed: int = 0,
+    progress: bool = True,
+    log=print,
+) -> Evaluation:
+    """Evaluate methods on the trajectory sets.
+
+    Parameters
+    ----------
+    methods : list of NetworkMethod / KnnKalmanMethod
+    sets : dict split name -> SequenceSet
+        Test trajectories (e.g. ``test/seen`` and ``test/holdout``).
+    noises : list of float, dB
+    validation : SequenceSet or None
+        For fitting the classical baseline.
+    lengths : list of int, optional
+        Tracking sequence lengths to evaluate (default 2..L); ``table_length`` is always included.
+    table_length : int
+        Length of the accuracy table (the paper's 7 steps).
+    max_trajectories : int, optional
+        Evaluate at most this many trajectories per split (a seeded random subset).
+    n_examples : int
+        Trajectories per kind kept for the recording.
+    seed : int
+    """
+    ev = Evaluation(table_length=table_length)
+    names = [m.name for m in methods]
+    if len(set(names)) != len(names):
+        raise EstimationError(f"two methods share a name: {names}")
+    for si, (split, data) in enumerate(sets.items()):
+        if data.n == 0:
+            log(f"split {split}: no trajectories, skipped")
+            continue
+        if max_trajectories and data.n > max_trajectories:
+            rows = np.sort(np.random.default_rng(seed).permutation(data.n)[:max_trajectories])
+            data = data.subset(rows)
+        L = data.length
+        tl = min(table_length, L)
+        lens = sorted({min(v, L) for v in (lengths or range(2, L + 1))} | {tl})
+        lens = [v for v in lens if v >= 1]
+        ex_rows = np.concatenate([np.flatnonzero(data.kind == k)[:n_examples] for k in np.unique(data.kind)])
+        ev.examples[split] = {"true": data.positions[ex_rows], "kind": data.kind[ex_rows]}
+        for ni, sigma in enumerate(noises):
+            gen = torch.Generator().manual_seed(seed * 1_000_003 + si * 1009 + ni)
+            bits = noisy_bits(data, sigma, gen)
+            for m in methods:
+                t0 = time.perf_counter()
+                pm = m.for_sigma(sigma, validation)
+                if m.name == "knn-kalman":
+                    ev.fitted.setdefault(m.name, {})[str(sigma)] = m.fitted.get(sigma)
+                if pm.task == "tracking":
+                    preds = pm.predict_lengths(bits, lens)
+                    for T, (pred, secs) in preds.items():
+                        _add(ev, m.name, split, sigma, "tracking", T, pred, data.positions[:, :T], data.kind)
+                        if T == tl and ni == 0 and si == 0:
+                            ev.cost[m.name] = {
+                                "parameters": m.n_parameters,
+                                "train_seconds": m.train_seconds,
+                                "epochs": m.epochs,
+                                "predict_seconds": secs * 1000 / data.n,
+                            }
+                    if ni == 0:
+                        ev.examples[split][m.name] = preds[max(lens)][0][ex_rows]
+                else:
+                    need = pm.t_obs + pm.horizon
+                    if need > L:
+                        raise EstimationError(f"{m.name}: forecasting needs {need} steps, {split} has {L}")
+                    pred, secs = pm.predict_lengths(bits, [pm.t_obs])[pm.t_obs]
+                    _add(
+                        ev,
+                        m.name,
+                        split,
+                        sigma,
+                        "forecasting",
+                        need,
+                        pred,
+                        data.positions[:, pm.t_obs : need],
+                        data.kind,
+                    )
+                    if ni == 0 and si == 0:
+                        ev.cost[m.name] = {
+                            "parameters": m.n_parameters,
+                            "train_seconds": m.train_seconds,
+                            "epochs": m.epochs,
+                            "predict_seconds": secs * 1000 / data.n,
+                        }
+                r = ev.select(method=m.name, split=split, sigma=sigma, kind="all")
+                log(
+                    f"{split} {sigma:g} dB {m.name}: mean RMSE "
+                    + ", ".join(f"{x['length']}:{x['mean']:.2f}" for x in r if x["length"] in (tl, max(lens)))
+                    + f" m ({time.perf_counter() - t0:.1f} s)"
+                )
+    return ev
+
+
+def _add(ev: Evaluation, method, split, sigma, task, length, pred, true, kind) -> None:
+    rmse = trajectory_rmse(pred, true)
+    for k, s in summarise_by_kind(rmse, kind).items():
+        ev.rows.append(
+            {
+                "method": method,
+                "split": split,
+                "sigma": float(sigma),
+                "task": task,
+                "length": int(length),
+                "kind": k,
+                **s,
+            }
+        )

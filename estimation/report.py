@@ -1,0 +1,213 @@
+"""Outputs of an evaluation: the paper's two tables (Markdown), error-versus-length plots (PNG),
+predicted against true trajectories (Rerun) and all numbers (JSON). Every file is written to a
+temporary name and renamed into place."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .data import KINDS
+from .evaluation import Evaluation
+
+__all__ = ["accuracy_table", "cost_table", "plot_error_vs_length", "write_report", "record_trajectories"]
+
+_KIND_ORDER = ("vehicle", "pedestrian", "hybrid", "static", "all")
+
+
+def _fmt(v: float) -> str:
+    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}"
+
+
+def _hms(seconds: float) -> str:
+    if seconds is None or math.isnan(seconds):
+        return "–"
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def accuracy_table(ev: Evaluation, split: str, task: str = "tracking") -> str:
+    """Markdown: mean RMSE per kind (and the 95th percentile over all) per method and noise level,
+    for ``table_length``-step sequences (tracking) or the forecast setting."""
+    rows = [r for r in ev.rows if r["split"] == split and r["task"] == task]
+    if task == "tracking":
+        rows = (
+            [r for r in rows if r["length"] == min(ev.table_length, max(x["length"] for x in rows))]
+            if rows
+            else []
+        )
+    if not rows:
+        return ""
+    kinds = [k for k in _KIND_ORDER if any(r["kind"] == k for r in rows)]
+    head = ["Model", "Noise (dB)"] + [f"{k.capitalize()} mean (m)" for k in kinds] + ["All p95 (m)", "n"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for m in methods:
+        for sigma in sorted({r["sigma"] for r in rows if r["method"] == m}):
+            by = {r["kind"]: r for r in rows if r["method"] == m and r["sigma"] == sigma}
+            cells = [m, f"{sigma:g}"] + [_fmt(by[k]["mean"]) if k in by else "–" for k in kinds]
+            cells += [_fmt(by["all"]["p95"]), str(by["all"]["n"])]
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def cost_table(ev: Evaluation) -> str:
+    """Markdown: learnable parameters, training time and prediction time per method."""
+    head = [
+        "Model",
+        "Parameters",
+        "Training time (h:mm:ss)",
+        "Epochs",
+        f"Prediction time (s per 1000 sequences of {ev.table_length} steps)",
+    ]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for m, c in ev.cost.items():
+        lines.append(
+            f"| {m} | {c['parameters']:.3g} | {_hms(c['train_seconds'])} | {c['epochs'] or '–'} | "
+            f"{c['predict_seconds']:.3f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot_error_vs_length(ev: Evaluation, split: str, sigma: float, path: str | os.PathLike) -> bool:
+    """PNG: mean (solid) and 95th-percentile (dashed) RMSE against sequence length, one panel per
+    kind, one colour per method. Returns False if there is nothing to plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in ev.rows if r["split"] == split and r["sigma"] == sigma and r["task"] == "tracking"]
+    kinds = [k for k in _KIND_ORDER if any(r["kind"] == k for r in rows)]
+    if not rows:
+        return False
+    fig, axes = plt.subplots(1, len(kinds), figsize=(4.2 * len(kinds), 3.6), squeeze=False, sharey=False)
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for ax, k in zip(axes[0], kinds, strict=True):
+        for i, m in enumerate(methods):
+            rs = sorted((r for r in rows if r["method"] == m and r["kind"] == k), key=lambda r: r["length"])
+            x = [r["length"] for r in rs]
+            colour = f"C{i}"
+            ax.plot(x, [r["mean"] for r in rs], "-o", ms=3, color=colour, label=f"{m} mean")
+            ax.plot(x, [r["p95"] for r in rs], "--", color=colour, alpha=0.7, label=f"{m} p95")
+        ax.set_title(f"{k} ({split}, {sigma:g} dB)")
+        ax.set_xlabel("sequence length (steps)")
+        ax.set_ylabel("RMSE (m)")
+        ax.grid(alpha=0.3)
+    axes[0][-1].legend(fontsize=7, ncol=1)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return True
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in text)
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_report(ev: Evaluation, out: str | os.PathLike, noises: list[float]) -> list[Path]:
+    """Write ``accuracy.md``, ``cost.md``, ``error_vs_length_<split>_<sigma>dB.png`` and
+    ``results.json`` into folder ``out``; returns the written paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    splits = list(dict.fromkeys(r["split"] for r in ev.rows))
+    written = []
+    parts = []
+    for split in splits:
+        t = accuracy_table(ev, split, "tracking")
+        if t:
+            parts.append(
+                f"## Tracking accuracy, {ev.table_length}-step sequences, split `{split}`\n\n"
+                "Mean per-trajectory RMSE by kind; 95th percentile over all kinds.\n\n" + t
+            )
+        f = accuracy_table(ev, split, "forecasting")
+        if f:
+            parts.append(f"## Forecasting accuracy, split `{split}`\n\n" + f)
+    p = out / "accuracy.md"
+    _write_text(p, "# Trajectory estimation accuracy\n\n" + "\n".join(parts))
+    written.append(p)
+    p = out / "cost.md"
+    _write_text(
+        p, "# Model size and run time\n\nTimes on this machine; noisy when it is shared.\n\n" + cost_table(ev)
+    )
+    written.append(p)
+    for split in splits:
+        for sigma in noises:
+            p = out / f"error_vs_length_{_slug(split)}_{sigma:g}dB.png"
+            if plot_error_vs_length(ev, split, sigma, p):
+                written.append(p)
+    p = out / "results.json"
+    _write_text(
+        p,
+        json.dumps(
+            {"table_length": ev.table_length, "rows": ev.rows, "cost": ev.cost, "knn_kalman_fit": ev.fitted},
+            indent=1,
+            default=float,
+        ),
+    )
+    written.append(p)
+    return written
+
+
+def record_trajectories(ev: Evaluation, path: str | os.PathLike, footprints=None) -> None:
+    """Rerun recording of predicted against true trajectories: ``trajectories/<split>-<i>/{true,<model>}``
+    as 2D line strips (static) and the current position on the ``step`` timeline."""
+    import rerun as rr
+
+    from mmwsim.recording import Entity, Recording, Timeline
+
+    with Recording(path, "evaluation", families=("trajectories",)) as rec:
+        if footprints:
+            strips = [np.asarray(p.exterior.coords) for p in footprints]
+            rec.log(
+                Entity.FOOTPRINTS, rr.LineStrips2D(strips, colors=[(120, 120, 120)], radii=0.3), static=True
+            )
+        for split, ex in ev.examples.items():
+            true = ex["true"]
+            sources = {"true": true} | {k: v for k, v in ex.items() if k not in ("true", "kind")}
+            for i in range(len(true)):
+                ident = f"{_slug(split)}-{i}"
+                label = KINDS[int(ex["kind"][i])]
+                for j, (src, arr) in enumerate(sources.items()):
+                    colour = (20, 20, 20) if src == "true" else _colour(j)
+                    ent = Entity.trajectory(ident, src)
+                    rec.log(
+                        ent,
+                        rr.LineStrips2D([arr[i]], colors=[colour], radii=0.25, labels=[f"{label} {src}"]),
+                        static=True,
+                    )
+                for t in range(true.shape[1]):
+                    rec.set_time(Timeline.STEP, t)
+                    for j, (src, arr) in enumerate(sources.items()):
+                        colour = (20, 20, 20) if src == "true" else _colour(j)
+                        rec.log(
+                            Entity.trajectory(ident, src) + "/now",
+                            rr.Points2D([arr[i][min(t, len(arr[i]) - 1)]], colors=[colour], radii=0.8),
+                        )
+
+
+def _colour(j: int) -> tuple[int, int, int]:
+    palette = [
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (127, 127, 127),
+    ]
+    return palette[j % len(palette)]

@@ -1,0 +1,309 @@
+"""Training loop: Adam, early stopping, ReduceLROnPlateau, fresh noise each epoch, checkpoints, resume.
+
+A run folder holds::
+
+    run.json        the training config and a description of the data it was trained on
+    checkpoint.pt   the state after the last finished epoch (weights, optimiser, scheduler, history)
+    model.pt        the best weights so far (by validation loss); what evaluation loads
+    training.rrd    the training curves (written when training ends)
+
+Every epoch reseeds its generators from ``(seed, epoch)``, so resuming after epoch k is bitwise the
+same as not having stopped (on CPU).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
+from .data import BatchSampler, SequenceSet
+from .errors import EstimationError
+from .estimator import MODEL_FILE, Estimator, TrainConfig
+
+__all__ = ["train", "CHECKPOINT_FILE", "RUN_FILE", "read_run_info"]
+
+CHECKPOINT_FILE = "checkpoint.pt"
+RUN_FILE = "run.json"
+RECORDING_FILE = "training.rrd"
+_HISTORY_KEYS = ("train_loss", "val_loss", "val_rmse", "lr", "seconds")
+
+
+def _lengths(cfg: TrainConfig, data: SequenceSet) -> tuple[int, int]:
+    if cfg.task == "forecasting":
+        return cfg.t_obs, cfg.horizon
+    hi = cfg.max_length or data.length
+    return min(cfg.min_length, hi), hi
+
+
+def read_run_info(run: str | os.PathLike) -> dict[str, Any]:
+    """The ``run.json`` of a run folder."""
+    path = Path(run) / RUN_FILE
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise EstimationError(f"{run}: not a training run (no {RUN_FILE})") from None
+    except (OSError, ValueError) as e:
+        raise EstimationError(f"{path}: unreadable run description ({e})") from None
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True))
+    os.replace(tmp, path)
+
+
+@torch.no_grad()
+def _validate(est: Estimator, sampler: BatchSampler) -> tuple[float, float]:
+    """Mean loss (normalised MSE) and mean per-trajectory RMSE (metres) on fixed-noise batches."""
+    est.eval()
+    loss_sum, n, rmse = 0.0, 0, []
+    for b in sampler.epoch(0):  # epoch 0 always: the same noise every time, so epochs are comparable
+        out = est(b.bits)
+        loss_sum += float(nn.functional.mse_loss(out, est.normaliser.to_unit(b.y), reduction="sum")) / 2
+        n += out.shape[0] * out.shape[1]
+        err = est.normaliser.to_metres(out) - b.y
+        rmse.append(err.pow(2).sum(-1).mean(-1).sqrt())
+    return loss_sum / max(n, 1), float(torch.cat(rmse).mean())
+
+
+def _record(run: Path, cfg: TrainConfig, history: dict[str, list[float]]) -> None:
+    import rerun as rr
+
+    from mmwsim.recording import Entity, Recording, Timeline
+
+    with Recording(
+        run / RECORDING_FILE,
+        f"training-{cfg.model}",
+        families=("training",),
+        config=json.loads(cfg.to_json()),
+    ) as rec:
+        for e in range(len(history["train_loss"])):
+            rec.set_time(Timeline.EPOCH, e + 1)
+            rec.log(Entity.training(cfg.model, "loss/train"), rr.Scalars(history["train_loss"][e]))
+            rec.log(Entity.training(cfg.model, "loss/validation"), rr.Scalars(history["val_loss"][e]))
+            rec.log(Entity.training(cfg.model, "rmse_m/validation"), rr.Scalars(history["val_rmse"][e]))
+            rec.log(Entity.training(cfg.model, "learning_rate"), rr.Scalars(history["lr"][e]))
+
+
+def _prefetch(batches: Iterator, depth: int = 3) -> Iterator:
+    """Draw batches (gather + fresh noise) in a background thread while the model trains on the
+    previous one. torch releases the GIL in its kernels, so this uses a second core; one thread
+    draws all batches in order, so the result is the same as drawing them inline."""
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def work():
+        try:
+            for b in batches:
+                if stop.is_set():
+                    return
+                q.put(b)
+            q.put(done)
+        except BaseException as e:  # re-raised in the consumer
+            q.put(e)
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    try:
+        while True:
+            item = q.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while t.is_alive():  # unblock a producer waiting on a full queue
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                t.join(0.01)
+
+
+def train(
+    train_set: SequenceSet,
+    val_set: SequenceSet,
+    cfg: TrainConfig,
+    run: str | os.PathLike,
+    resume: bool = False,
+    data_info: dict[str, Any] | None = None,
+    progress: bool = True,
+    record: bool = True,
+    log=print,
+    time_limit: float | None = None,
+) -> dict[str, Any]:
+    """Train ``cfg.model`` and write the run folder ``run``.
+
+    Parameters
+    ----------
+    train_set, val_set : SequenceSet
+        Training and validation trajectories (on the same grid).
+    cfg : TrainConfig
+    run : path-like
+        Run folder; created if missing. An existing checkpoint there is an error unless ``resume``.
+    resume : bool
+        Continue from ``run/checkpoint.pt`` (same config required, except ``epochs``).
+    data_info : dict, optional
+        Description of the data (data set path, content hash, splits), stored in ``run.json``.
+    progress : bool
+        Show a tqdm bar per epoch.
+    record : bool
+        Write ``run/training.rrd`` with the training curves at the end.
+    time_limit : float, optional
+        Seconds of wall time after which no new epoch is started (the run stays resumable).
+
+    Returns
+    -------
+    dict
+        Summary: ``epochs`` run, ``best_val_loss``, ``best_val_rmse`` (m), ``train_seconds``,
+        ``parameters``, ``stopped_early``.
+    """
+    run = Path(run)
+    if run.exists() and not run.is_dir():
+        raise EstimationError(f"{run}: exists and is not a folder")
+    run.mkdir(parents=True, exist_ok=True)
+    if not os.access(run, os.W_OK):
+        raise EstimationError(f"{run}: folder is not writable")
+    ckpt_path = run / CHECKPOINT_FILE
+    if ckpt_path.exists() and not resume:
+        raise EstimationError(f"{run}: already holds a checkpoint; pass --resume or choose another --out")
+    if train_set.n == 0 or val_set.n == 0:
+        raise EstimationError("training and validation sets must not be empty")
+    if (train_set.n_beams, train_set.n_bins) != (val_set.n_beams, val_set.n_bins):
+        raise EstimationError("training and validation fingerprints differ in shape")
+
+    lengths = _lengths(cfg, train_set)
+    sampler = BatchSampler(train_set, cfg.task, cfg.sigma, cfg.batch_size, lengths, cfg.seed)
+    val_lengths = (lengths[1], lengths[1]) if cfg.task == "tracking" else lengths
+    val_sampler = BatchSampler(val_set, cfg.task, cfg.sigma, 256, val_lengths, cfg.seed + 1, shuffle=False)
+
+    torch.manual_seed(cfg.seed)
+    est = Estimator(cfg, train_set.n_beams, train_set.n_bins, train_set.normaliser())
+    opt = torch.optim.Adam(est.net.parameters(), lr=cfg.lr, foreach=True)
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.lr_factor, patience=cfg.lr_patience)
+    history: dict[str, list[float]] = {k: [] for k in _HISTORY_KEYS}
+    best_val, bad, epoch, done = math.inf, 0, 0, False
+
+    if resume and ckpt_path.exists():
+        state = load_checkpoint(
+            ckpt_path,
+            CHECKPOINT_FORMAT,
+            ("config", "epoch", "model", "optimizer", "scheduler", "history", "best_val"),
+        )
+        try:
+            saved = TrainConfig.from_json(state["config"])
+        except (ValueError, TypeError) as e:
+            raise EstimationError(f"{ckpt_path}: unreadable config ({e})") from None
+        if json.loads(saved.to_json()) | {"epochs": 0} != json.loads(cfg.to_json()) | {"epochs": 0}:
+            raise EstimationError(f"{ckpt_path}: was written with other settings ({saved.to_json()})")
+        try:
+            est.net.load_state_dict(state["model"])
+            opt.load_state_dict(state["optimizer"])
+            sched.load_state_dict(state["scheduler"])
+        except (RuntimeError, ValueError, KeyError, TypeError) as e:
+            raise EstimationError(
+                f"{ckpt_path}: does not fit this model ({str(e).splitlines()[0][:160]})"
+            ) from None
+        history = {k: list(state["history"][k]) for k in _HISTORY_KEYS}
+        epoch, best_val = int(state["epoch"]), float(state["best_val"])
+        bad, done = int(state.get("bad_epochs", 0)), bool(state.get("done", False))
+        log(f"resuming {cfg.model} after epoch {epoch}")
+
+    info = {
+        "config": json.loads(cfg.to_json()),
+        "data": data_info or {},
+        "parameters": est.n_parameters,
+        "n_beams": train_set.n_beams,
+        "n_bins": train_set.n_bins,
+        "lengths": list(lengths),
+        "n_train": train_set.n,
+        "n_val": val_set.n,
+    }
+    _write_json(run / RUN_FILE, info)
+
+    started = time.perf_counter()
+    while not done and epoch < cfg.epochs:
+        if time_limit is not None and time.perf_counter() - started >= time_limit:
+            log(f"{cfg.model}: time limit reached after epoch {epoch}; continue with --resume")
+            break
+        t0 = time.perf_counter()
+        torch.manual_seed(cfg.seed * 7919 + epoch + 1)  # dropout masks of this epoch
+        est.train()
+        total, count = 0.0, 0
+        batches = _prefetch(sampler.epoch(epoch))
+        if progress:
+            from tqdm import tqdm
+
+            batches = tqdm(
+                batches, total=len(sampler), desc=f"{cfg.model} epoch {epoch + 1}", leave=False, unit="batch"
+            )
+        for b in batches:
+            out = est(b.bits, b.y)
+            loss = nn.functional.mse_loss(out, est.normaliser.to_unit(b.y))
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(b.rows)
+            count += len(b.rows)
+        val_loss, val_rmse = _validate(est, val_sampler)
+        lr = opt.param_groups[0]["lr"]
+        sched.step(val_loss)
+        epoch += 1
+        for k, v in zip(
+            _HISTORY_KEYS, (total / count, val_loss, val_rmse, lr, time.perf_counter() - t0), strict=True
+        ):
+            history[k].append(float(v))
+        if val_loss < best_val:
+            best_val, bad = val_loss, 0
+            est.save(run / MODEL_FILE, {"epoch": epoch, "val_loss": val_loss, "val_rmse": val_rmse})
+        else:
+            bad += 1
+        done = bad >= cfg.patience
+        save_checkpoint(
+            ckpt_path,
+            {
+                "format": CHECKPOINT_FORMAT,
+                "config": cfg.to_json(),
+                "epoch": epoch,
+                "model": est.net.state_dict(),
+                "optimizer": opt.state_dict(),
+                "scheduler": sched.state_dict(),
+                "history": history,
+                "best_val": best_val,
+                "bad_epochs": bad,
+                "done": done,
+            },
+        )
+        log(
+            f"{cfg.model} epoch {epoch}: train {total / count:.5f} val {val_loss:.5f} "
+            f"rmse {val_rmse:.2f} m lr {lr:.1e} ({history['seconds'][-1]:.1f} s)"
+        )
+
+    if record and history["train_loss"]:
+        _record(run, cfg, history)
+    best_epoch = int(np.argmin(history["val_loss"])) if history["val_loss"] else -1
+    summary = {
+        "epochs": epoch,
+        "best_epoch": best_epoch + 1,
+        "best_val_loss": best_val,
+        "best_val_rmse": history["val_rmse"][best_epoch] if best_epoch >= 0 else math.nan,
+        "train_seconds": float(sum(history["seconds"])),
+        "parameters": est.n_parameters,
+        "stopped_early": done,
+    }
+    _write_json(run / RUN_FILE, info | {"summary": summary})
+    return summary

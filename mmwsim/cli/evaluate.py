@@ -1,0 +1,137 @@
+"""``mmwsim evaluate RUN... [--noise 6 9] [--rrd FILE]``: accuracy tables, plots and recordings."""
+
+from __future__ import annotations
+
+import argparse
+
+EPILOG = """\
+Each RUN is a folder written by `mmwsim train`, or the word knn-kalman for the classical baseline
+(nearest-fingerprint matching on the data-set grid plus a constant-velocity Kalman smoother, fitted
+per noise level on the validation split; it needs no training). The data set is the one the first
+run was trained on unless --dataset is given (required when knn-kalman is the only RUN).
+
+Examples:
+  mmwsim evaluate runs/tn runs/lstm knn-kalman --noise 6 9 --out report --rrd report/trajectories.rrd
+  mmwsim evaluate knn-kalman --dataset data.zarr
+
+By default the test split is evaluated as test/seen (trajectories outside the spatial hold-out
+region) and test/holdout (those touching it); empty parts are skipped. Writes into --out:
+accuracy.md (mean RMSE per kind and noise, 95th percentile, for --table-length steps), cost.md
+(parameters, training and prediction time), error_vs_length_<split>_<noise>dB.png and results.json.
+"""
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "evaluate",
+        help="evaluate trained runs and the knn-kalman baseline",
+        description=__doc__,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("runs", nargs="+", metavar="RUN", help="run folder, or knn-kalman")
+    p.add_argument("--dataset", help="data set (or toy spec) to evaluate on (default: the first run's)")
+    p.add_argument(
+        "--noise", type=float, nargs="+", default=[6.0, 9.0], help="noise levels, dB (default 6 9)"
+    )
+    p.add_argument(
+        "--split",
+        nargs="+",
+        default=["test/seen", "test/holdout"],
+        help="splits to evaluate (SPLIT, SPLIT/seen, SPLIT/holdout; default test/seen test/holdout)",
+    )
+    p.add_argument("--val-split", default="validation", help="split the knn-kalman baseline is fitted on")
+    p.add_argument("--lengths", type=int, nargs="+", help="tracking sequence lengths (default 2..L)")
+    p.add_argument(
+        "--table-length", type=int, default=7, help="sequence length of the accuracy table (default 7)"
+    )
+    p.add_argument(
+        "--max-trajectories",
+        type=int,
+        default=2000,
+        help="at most this many trajectories per split (seeded subset; default 2000, 0 = all)",
+    )
+    p.add_argument(
+        "--task",
+        choices=("tracking", "forecasting"),
+        default="tracking",
+        help="task of the knn-kalman baseline (networks use their own; default tracking)",
+    )
+    p.add_argument("--t-obs", type=int, default=5, help="knn-kalman forecasting: observed steps")
+    p.add_argument("--horizon", type=int, default=2, help="knn-kalman forecasting: predicted steps")
+    p.add_argument("--out", default="evaluation", help="report folder (default ./evaluation)")
+    p.add_argument("--rrd", help="write predicted vs true trajectories to this .rrd")
+    p.add_argument("--seed", type=int, default=0, help="seed of the evaluation noise (default 0)")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.set_defaults(func=_evaluate)
+
+
+def _evaluate(args) -> int:
+    from pathlib import Path
+
+    import torch
+
+    from estimation import (
+        EstimationError,
+        Estimator,
+        KnnKalmanMethod,
+        NetworkMethod,
+        evaluate,
+        read_run_info,
+        record_trajectories,
+        write_report,
+    )
+    from estimation.adapter import load_sets, scene_footprints
+
+    torch.set_num_threads(max(1, args.threads))
+    if any(n < 0 for n in args.noise):
+        raise EstimationError(f"--noise {args.noise}: noise levels must be >= 0 dB")
+    if args.rrd and not args.rrd.endswith(".rrd"):
+        raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
+    methods, dataset = [], args.dataset
+    for run in args.runs:
+        if run == "knn-kalman":
+            methods.append(
+                KnnKalmanMethod(args.task, args.t_obs, args.horizon, args.table_length, seed=args.seed)
+            )
+            continue
+        if not Path(run).is_dir():
+            raise EstimationError(f"{run}: not a run folder (nor knn-kalman)")
+        info = read_run_info(run)
+        est = Estimator.load(run)
+        summary = info.get("summary", {})
+        name = Path(run).resolve().name  # the folder name labels the run in tables and recordings
+        methods.append(
+            NetworkMethod(est, name, summary.get("train_seconds", float("nan")), summary.get("epochs", 0))
+        )
+        dataset = dataset or info.get("data", {}).get("dataset")
+    if not dataset:
+        raise EstimationError("no data set: give --dataset (needed when knn-kalman is the only RUN)")
+    names = tuple(dict.fromkeys([*args.split, args.val_split]))
+    sets, _ = load_sets(dataset, names)
+    first = next(iter(sets.values()))
+    for m in methods:
+        if isinstance(m, NetworkMethod) and (m.est.n_beams, m.est.n_bins) != (first.n_beams, first.n_bins):
+            raise EstimationError(
+                f"{m.name}: trained on {m.est.n_beams} x {m.est.n_bins} fingerprints, "
+                f"{dataset} has {first.n_beams} x {first.n_bins}"
+            )
+    test = {k: sets[k] for k in args.split}
+    ev = evaluate(
+        methods,
+        test,
+        list(args.noise),
+        sets[args.val_split],
+        lengths=args.lengths,
+        table_length=args.table_length,
+        max_trajectories=args.max_trajectories or None,
+        seed=args.seed,
+    )
+    written = write_report(ev, args.out, list(args.noise))
+    if args.rrd:
+        record_trajectories(ev, args.rrd, footprints=scene_footprints(dataset))
+        written.append(Path(args.rrd))
+    print((Path(args.out) / "accuracy.md").read_text())
+    print((Path(args.out) / "cost.md").read_text())
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0

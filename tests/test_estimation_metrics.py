@@ -1,0 +1,93 @@
+"""Metrics against hand-computed values; the Kalman smoother and fingerprint matcher on synthetic data."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from estimation import (
+    FingerprintMatcher,
+    kalman_forecast,
+    rts_smoother,
+    summarise,
+    summarise_by_kind,
+    trajectory_rmse,
+)
+from estimation.data import KINDS, fingerprint_bits
+from estimation.synthetic import toy_grid
+
+
+def test_trajectory_rmse_by_hand():
+    true = np.zeros((2, 2, 2))
+    pred = np.array(
+        [
+            [[3.0, 4.0], [0.0, 0.0]],  # errors 5 and 0 -> sqrt(25 / 2)
+            [[1.0, 0.0], [0.0, 1.0]],
+        ]
+    )  # errors 1 and 1 -> 1
+    assert np.allclose(trajectory_rmse(pred, true), [math.sqrt(12.5), 1.0])
+    with pytest.raises(ValueError):
+        trajectory_rmse(pred[:, :1], true)
+
+
+def test_summaries_by_hand():
+    r = np.arange(1.0, 21.0)  # 1..20
+    s = summarise(r)
+    assert s["n"] == 20 and s["mean"] == 10.5 and s["median"] == 10.5
+    assert s["p95"] == pytest.approx(19.05)  # position 0.95 * 19 = 18.05 -> 19 + 0.05 * (20 - 19)
+    kind = np.array([KINDS.index("pedestrian")] * 10 + [KINDS.index("vehicle")] * 10)
+    by = summarise_by_kind(r, kind)
+    assert by["pedestrian"]["mean"] == 5.5 and by["vehicle"]["mean"] == 15.5 and by["all"]["n"] == 20
+    assert math.isnan(summarise(np.array([]))["mean"])
+
+
+def _cv_tracks(n=300, T=15, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)
+    p0, v = rng.uniform(0, 100, (n, 2)), rng.normal(0, 5, (n, 2))
+    return p0[:, None] + v[:, None] * t[None, :, None]
+
+
+def test_rts_smoother_on_constant_velocity_track():
+    true = _cv_tracks()
+    # exact measurements of a constant-velocity track are kept (up to the prior on the first step)
+    assert np.abs(rts_smoother(true, q=0.01, r=0.01)[:, 1:] - true[:, 1:]).max() < 1e-3
+    rng = np.random.default_rng(1)
+    z = true + rng.normal(0, 3.0, true.shape)
+    raw = trajectory_rmse(z, true).mean()
+    smooth = trajectory_rmse(rts_smoother(z, q=0.01, r=3.0), true).mean()
+    assert raw == pytest.approx(3 * math.sqrt(2), rel=0.05)
+    # a line fitted to 15 points: error ~ r sqrt(2 * 2 / 15) in theory; allow some slack
+    assert smooth < 0.45 * raw
+    # gating removes a gross outlier that would otherwise drag the track
+    z_out = true.copy()
+    z_out[:, 7] += 80.0
+    gated = rts_smoother(z_out, q=0.1, r=1.0, gate=4.0)
+    assert (
+        trajectory_rmse(gated, true).mean()
+        < 0.5
+        < trajectory_rmse(rts_smoother(z_out, q=0.1, r=1.0), true).mean()
+    )
+
+
+def test_kalman_forecast_extrapolates_constant_velocity():
+    true = _cv_tracks(T=8)
+    pred = kalman_forecast(true[:, :5], 3, q=0.01, r=0.01)
+    assert np.abs(pred - true[:, 5:]).max() < 0.05
+
+
+def test_matcher_finds_the_right_grid_point():
+    xy, pdp = toy_grid(12, 12, n_beams=6, n_bins=10, seed=2)
+    m = FingerprintMatcher(torch.from_numpy(pdp), xy, sigma=3.0, threshold=-115.0)
+    rows = np.arange(0, len(xy), 7)
+    exact = torch.from_numpy(pdp[rows] >= -115.0).float()
+    assert np.array_equal(m.match(exact), xy[rows])  # noiseless fingerprints: the point itself
+    noisy = fingerprint_bits(torch.from_numpy(pdp[rows]), 3.0, -115.0, torch.Generator().manual_seed(0))
+    err = np.linalg.norm(m.match(noisy[None])[0] - xy[rows], axis=-1)
+    assert np.median(err) <= 1.0
+    # chunking over grid points does not change the result
+    m2 = FingerprintMatcher(torch.from_numpy(pdp), xy, sigma=3.0, threshold=-115.0, chunk=13)
+    assert np.array_equal(m2.match(noisy), m.match(noisy))

@@ -85,9 +85,12 @@ def plot_error_vs_length(ev: Evaluation, split: str, sigma: float, path: str | o
     kinds = [k for k in _KIND_ORDER if any(r["kind"] == k for r in rows)]
     if not rows:
         return False
-    fig, axes = plt.subplots(1, len(kinds), figsize=(4.2 * len(kinds), 3.6), squeeze=False, sharey=False)
+    ncols = min(3, len(kinds))
+    nrows = -(-len(kinds) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.4 * ncols, 3.5 * nrows), squeeze=False)
+    axes = axes.ravel()
     methods = list(dict.fromkeys(r["method"] for r in rows))
-    for ax, k in zip(axes[0], kinds, strict=True):
+    for ax, k in zip(axes, kinds, strict=False):
         for i, m in enumerate(methods):
             rs = sorted((r for r in rows if r["method"] == m and r["kind"] == k), key=lambda r: r["length"])
             x = [r["length"] for r in rs]
@@ -98,7 +101,9 @@ def plot_error_vs_length(ev: Evaluation, split: str, sigma: float, path: str | o
         ax.set_xlabel("sequence length (steps)")
         ax.set_ylabel("RMSE (m)")
         ax.grid(alpha=0.3)
-    axes[0][-1].legend(fontsize=7, ncol=1)
+    for ax in axes[len(kinds) :]:
+        ax.axis("off")
+    axes[0].legend(fontsize=7, ncol=1)
     fig.tight_layout()
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.partial.png")

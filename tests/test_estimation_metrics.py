@@ -91,3 +91,35 @@ def test_matcher_finds_the_right_grid_point():
     # chunking over grid points does not change the result
     m2 = FingerprintMatcher(torch.from_numpy(pdp), xy, sigma=3.0, threshold=-115.0, chunk=13)
     assert np.array_equal(m2.match(noisy), m.match(noisy))
+
+
+class _Offset:
+    """A fake method that knows the truth and adds a fixed offset: RMSE is exactly |offset|."""
+
+    task, t_obs, horizon, n_parameters, train_seconds, epochs = "tracking", 0, 0, 0, 0.0, 0
+
+    def __init__(self, data, offset, name):
+        self.data, self.offset, self.name = data, np.asarray(offset), name
+
+    def for_sigma(self, sigma, validation):
+        return self
+
+    def predict_lengths(self, bits, lengths):
+        assert bits.shape[:2] == self.data.index.shape
+        return {L: (self.data.positions[:, :L] + self.offset, 0.0) for L in lengths}
+
+
+def test_evaluation_bookkeeping_with_known_errors():
+    from estimation import evaluate
+    from estimation.synthetic import toy_sequence_set
+
+    d = toy_sequence_set(20, 6, nx=16, ny=16, n_beams=4, n_bins=8, seed=4)
+    methods = [_Offset(d, [0.0, 0.0], "oracle"), _Offset(d, [3.0, 4.0], "off5")]
+    ev = evaluate(methods, {"test": d}, [6.0], None, lengths=[2, 4], table_length=5, log=lambda *a: None)
+    assert {r["length"] for r in ev.rows} == {2, 4, 5}
+    for r in ev.rows:
+        assert r["mean"] == pytest.approx(0.0 if r["method"] == "oracle" else 5.0)
+        assert r["p95"] == pytest.approx(r["mean"])
+    kinds = {r["kind"] for r in ev.rows}
+    assert "all" in kinds and kinds - {"all"} <= set(KINDS)
+    assert ev.examples["test"]["off5"].shape[1:] == (5, 2)

@@ -37,10 +37,10 @@ def default_scene_path():
     return resources.files("scenes") / "default" / "scene.toml"
 
 
-def _default(**kw: Any) -> Scene:
+def _default(tx: tuple[float, float, float] | None = None, **kw: Any) -> Scene:
     if kw:
         raise MmwsimError(f"scene 'default' takes no parameters, got {', '.join(kw)}")
-    return load_toml(default_scene_path())
+    return load_toml(default_scene_path(), transmitter=tx)
 
 
 CATALOGUE = {
@@ -89,15 +89,9 @@ def load(name: str, transmitter: tuple[float, float, float] | None = None) -> Sc
         if not eq:
             raise MmwsimError(f"scene {name!r}: parameter {item!r} is not key=value")
         kwargs[key.strip()] = _parse_value(value.strip())
-    if transmitter is not None and base != "default":
+    if transmitter is not None:
         kwargs["tx"] = tuple(float(v) for v in transmitter)
     try:
-        scene = CATALOGUE[base](**kwargs)
+        return CATALOGUE[base](**kwargs)
     except TypeError as e:
         raise MmwsimError(f"scene {name!r}: {e}") from None
-    if transmitter is not None and base == "default":
-        from mmwsim.scene import Transmitter
-
-        scene.check_transmitter(transmitter)
-        scene.transmitter = Transmitter(tuple(float(v) for v in transmitter), scene.transmitter.power_dbm)
-    return scene

@@ -16,12 +16,12 @@ import numpy as np
 from ..constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
 from ..errors import MmwsimError
 from .patterns import Isotropic, Pattern, PyramidalHorn
-from .spherical import spherical_basis
+from .spherical import FieldFromBasis
 
 __all__ = ["Codebook", "RotatingHorn", "PlanarArrayCodebook", "make_codebook"]
 
 
-class Codebook(ABC):
+class Codebook(FieldFromBasis, ABC):
     """A set of ``n_beams`` transmit patterns."""
 
     n_beams: int
@@ -33,20 +33,6 @@ class Codebook(ABC):
     @abstractmethod
     def describe(self) -> dict[str, Any]:
         """JSON-able parameters (stored in data-set configs)."""
-
-    def field(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(n_beams, ..., 2) complex128 fields (E_theta, E_phi) towards (theta, phi), radians."""
-        return self.field_basis(*spherical_basis(theta, phi))
-
-    def gain(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(n_beams, ...) float64 linear gain per beam."""
-        f = self.field(theta, phi)
-        return np.sum(f.real**2 + f.imag**2, axis=-1)
-
-    def gain_dbi(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(n_beams, ...) float64 gain per beam, dBi."""
-        with np.errstate(divide="ignore"):
-            return 10.0 * np.log10(self.gain(theta, phi))
 
 
 class RotatingHorn(Codebook):

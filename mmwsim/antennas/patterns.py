@@ -16,12 +16,12 @@ from scipy.optimize import brentq
 
 from ..constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
 from ..errors import MmwsimError
-from .spherical import POLARISATIONS, spherical_basis
+from .spherical import POLARISATIONS, FieldFromBasis
 
 __all__ = ["Pattern", "Isotropic", "ShortDipole", "PyramidalHorn", "integrate_gain"]
 
 
-class Pattern(ABC):
+class Pattern(FieldFromBasis, ABC):
     """A far-field pattern; subclasses implement :meth:`field_basis`."""
 
     @abstractmethod
@@ -38,20 +38,6 @@ class Pattern(ABC):
         (..., 2) complex128
             (E_theta, E_phi), ``|.|^2`` = linear gain.
         """
-
-    def field(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(..., 2) complex128 field (E_theta, E_phi) towards (theta, phi), radians; ``|F|^2`` is gain."""
-        return self.field_basis(*spherical_basis(theta, phi))
-
-    def gain(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(...,) float64 linear gain towards (theta, phi), radians."""
-        f = self.field(theta, phi)
-        return np.sum(f.real**2 + f.imag**2, axis=-1)
-
-    def gain_dbi(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(...,) float64 gain in dBi (-inf in exact nulls)."""
-        with np.errstate(divide="ignore"):
-            return 10.0 * np.log10(self.gain(theta, phi))
 
 
 def _polarisation(p: str | np.ndarray) -> np.ndarray:

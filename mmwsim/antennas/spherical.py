@@ -46,3 +46,28 @@ def angles_of(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r = np.linalg.norm(v, axis=-1)
     theta = np.arccos(np.clip(v[..., 2] / np.where(r > 0, r, 1.0), -1.0, 1.0))
     return theta, np.arctan2(v[..., 1], v[..., 0])
+
+
+class FieldFromBasis:
+    """``field``, ``gain`` and ``gain_dbi`` by angles, from a subclass's ``field_basis(r, th, ph)``.
+
+    The trailing axis of a field is (E_theta, E_phi) with ``|F|^2`` the linear gain;
+    leading axes (e.g. one per beam) pass through.
+    """
+
+    def field_basis(self, r: np.ndarray, th: np.ndarray, ph: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def field(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """(..., 2) complex128 field (E_theta, E_phi) towards (theta, phi), radians."""
+        return self.field_basis(*spherical_basis(theta, phi))
+
+    def gain(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """(...) float64 linear gain towards (theta, phi), radians."""
+        f = self.field(theta, phi)
+        return np.sum(f.real**2 + f.imag**2, axis=-1)
+
+    def gain_dbi(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """(...) float64 gain in dBi (-inf in exact nulls)."""
+        with np.errstate(divide="ignore"):
+            return 10.0 * np.log10(self.gain(theta, phi))

@@ -25,7 +25,7 @@ from .evaluation import Evaluation, KnnKalmanMethod, NetworkMethod, evaluate, no
 from .metrics import summarise, summarise_by_kind, trajectory_rmse
 from .models import MODELS, build_network, count_parameters
 from .report import accuracy_table, cost_table, plot_error_vs_length, record_trajectories, write_report
-from .training import read_run_info, train
+from .training import read_run_info, record_training, train
 
 __all__ = [
     "Batch",
@@ -58,6 +58,7 @@ __all__ = [
     "open_dataset",
     "plot_error_vs_length",
     "read_run_info",
+    "record_training",
     "record_trajectories",
     "rts_smoother",
     "save_checkpoint",

@@ -18,7 +18,15 @@ from scipy.spatial import cKDTree
 from .data import KINDS, SequenceSet
 from .errors import EstimationError
 
-__all__ = ["open_dataset", "GridTable", "load_splits", "load_sets", "scene_footprints", "sequence_set"]
+__all__ = [
+    "open_dataset",
+    "GridTable",
+    "dataset_threshold",
+    "load_splits",
+    "load_sets",
+    "scene_footprints",
+    "sequence_set",
+]
 
 _CHUNK = 8192  # grid points per read
 
@@ -123,6 +131,15 @@ def sequence_set(
     return SequenceSet(table.pdp, table.xy, table.rows(pos), pos, kind, float(threshold), table.extent)
 
 
+def dataset_threshold(dataset: Any) -> float:
+    """Detection threshold of a data set, dBm: its ``config["threshold_dbm"]``, else its
+    ``threshold_dbm`` attribute, else ``mmwsim.fingerprints.THRESHOLD_DBM``."""
+    from mmwsim.fingerprints import THRESHOLD_DBM
+
+    stored = (getattr(dataset, "config", None) or {}).get("threshold_dbm")
+    return float(stored if stored is not None else getattr(dataset, "threshold_dbm", THRESHOLD_DBM))
+
+
 def load_splits(
     path: str | os.PathLike, splits: tuple[str, ...], dataset: Any = None, threshold: float | None = None
 ) -> tuple[dict[str, SequenceSet], dict[str, Any]]:
@@ -147,14 +164,12 @@ def load_splits(
     info : dict describing the data (path, content hash, grid, splits and their sizes)
     """
     from mmwsim.errors import MmwsimError
-    from mmwsim.fingerprints import THRESHOLD_DBM
     from mmwsim.trajectories import KINDS as TRAJ_KINDS
     from mmwsim.trajectories import read_trajectories
 
     ds = open_dataset(path) if dataset is None else dataset
     if threshold is None:
-        stored = (getattr(ds, "config", None) or {}).get("threshold_dbm")
-        threshold = float(stored if stored is not None else getattr(ds, "threshold_dbm", THRESHOLD_DBM))
+        threshold = dataset_threshold(ds)
     table = GridTable(ds)
     sets: dict[str, SequenceSet] = {}
     for name in splits:

@@ -25,7 +25,7 @@ __all__ = ["FingerprintMatcher", "rts_smoother", "kalman_forecast", "KnnKalman"]
 
 
 class FingerprintMatcher:
-    """Maximum-likelihood grid point of noisy fingerprints.
+    """Maximum-likelihood grid points of noisy fingerprints.
 
     Parameters
     ----------
@@ -37,7 +37,13 @@ class FingerprintMatcher:
     eps : float
         Probabilities are clipped to ``[eps, 1 - eps]`` so that one surprising bit cannot veto a point.
     chunk : int
-        Grid points per matrix product.
+        Grid points per block when the weights are built.
+
+    Notes
+    -----
+    The weights ``logit p`` are built once, ``(C, G)`` float32 for the ``C`` fingerprint entries in
+    which any grid point has signal (about 200 MB for the default data set), so that scoring a
+    fingerprint is a sum of the weight rows of its ones.
     """
 
     def __init__(
@@ -54,6 +60,8 @@ class FingerprintMatcher:
         flat = grid_pdp.reshape(len(grid_pdp), -1)
         # Columns where no grid point has any signal can never read 1 and score all points alike.
         self.columns = torch.nonzero(torch.isfinite(flat).any(0)).flatten()
+        self._w: torch.Tensor | None = None
+        self._c: torch.Tensor | None = None
 
     def _weights(self, rows: slice) -> tuple[torch.Tensor, torch.Tensor]:
         pdp = self.grid_pdp[rows].reshape(-1, self.grid_pdp.shape[1] * self.grid_pdp.shape[2])
@@ -65,7 +73,58 @@ class FingerprintMatcher:
         p = p.clamp(self.eps, 1 - self.eps)
         return torch.log(p) - torch.log1p(-p), torch.log1p(-p).sum(1)
 
+    def _tables(self) -> tuple[torch.Tensor, torch.Tensor]:
+        if self._w is None:
+            G = len(self.grid_pdp)
+            w = torch.empty((len(self.columns), G), dtype=torch.float32)
+            c = torch.empty(G, dtype=torch.float32)
+            for k in range(0, G, self.chunk):
+                wk, ck = self._weights(slice(k, k + self.chunk))
+                w[:, k : k + len(ck)] = wk.T
+                c[k : k + len(ck)] = ck
+            self._w, self._c = w, c
+        assert self._c is not None
+        return self._w, self._c
+
     @torch.no_grad()
+    def scores(self, bits: torch.Tensor) -> torch.Tensor:
+        """Log-likelihood of every grid point: ``bits (N, M, N_s)`` -> ``(N, G)`` float32."""
+        w, c = self._tables()
+        x = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])[:, self.columns]
+        # Fingerprints are sparse (a few percent ones): x @ W as a sum of W's rows over the ones,
+        # i.e. an embedding bag, is several times faster than the dense product.
+        nz = torch.nonzero(x)
+        offsets = torch.searchsorted(nz[:, 0].contiguous(), torch.arange(len(x)))
+        return torch.nn.functional.embedding_bag(nz[:, 1], w, offsets, mode="sum") + c
+
+    @torch.no_grad()
+    def candidates(self, bits: torch.Tensor, k: int, block: int = 1024) -> tuple[torch.Tensor, torch.Tensor]:
+        """The ``k`` most likely grid points of each fingerprint, best first.
+
+        Parameters
+        ----------
+        bits : (..., M, N_s) tensor of 0/1
+        k : int
+        block : int
+            Fingerprints scored at once (bounds the ``(block, G)`` score matrix).
+
+        Returns
+        -------
+        scores : (..., k) float32 log-likelihoods
+        rows : (..., k) int64 grid rows (indices into ``grid_xy``)
+        """
+        lead = bits.shape[:-2]
+        flat = bits.reshape(-1, *bits.shape[-2:])
+        k = min(int(k), len(self.grid_pdp))
+        vals, rows = [], []
+        for a in range(0, len(flat), block):
+            v, i = self.scores(flat[a : a + block]).topk(k, dim=1)
+            vals.append(v)
+            rows.append(i)
+        if not vals:
+            return torch.zeros((*lead, k)), torch.zeros((*lead, k), dtype=torch.int64)
+        return torch.cat(vals).reshape(*lead, k), torch.cat(rows).reshape(*lead, k)
+
     def match(self, bits: torch.Tensor) -> np.ndarray:
         """Best grid point per fingerprint.
 
@@ -77,22 +136,8 @@ class FingerprintMatcher:
         -------
         (..., 2) float64 positions of the matched grid points, metres
         """
-        lead = bits.shape[:-2]
-        x = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])[:, self.columns]
-        # Fingerprints are sparse (a few percent ones): x @ W.T as a sum of W's rows over the ones,
-        # i.e. an embedding bag, is several times faster than the dense product.
-        nz = torch.nonzero(x)
-        offsets = torch.searchsorted(nz[:, 0].contiguous(), torch.arange(len(x)))
-        best = torch.full((len(x),), -torch.inf)
-        arg = torch.zeros(len(x), dtype=torch.int64)
-        for k in range(0, len(self.grid_pdp), self.chunk):
-            w, c = self._weights(slice(k, k + self.chunk))
-            score = torch.nn.functional.embedding_bag(nz[:, 1], w.T.contiguous(), offsets, mode="sum") + c
-            val, idx = score.max(1)
-            better = val > best
-            best = torch.where(better, val, best)
-            arg = torch.where(better, idx + k, arg)
-        return self.grid_xy[arg.numpy()].reshape(*lead, 2)
+        _, rows = self.candidates(bits, 1)
+        return self.grid_xy[rows[..., 0].numpy()]
 
 
 def _cv_model(dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:

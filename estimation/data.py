@@ -9,6 +9,7 @@ Fingerprints are never stored: every use draws the bits afresh from the grid PDP
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -182,11 +183,13 @@ def fingerprint_bits(
 
 @dataclass
 class Batch:
-    """One mini-batch: ``bits (B, T_in, M, N_s)``, targets ``y (B, T_out, 2)`` metres, rows ``(B,)``."""
+    """One mini-batch: ``bits (B, T_in, M, N_s)``, targets ``y (B, T_out, 2)`` metres, rows ``(B,)``,
+    and optionally what the network reads of the bits (``Estimator.inputs``), prepared ahead."""
 
     bits: torch.Tensor
     y: torch.Tensor
     rows: np.ndarray
+    inputs: Any = None
 
 
 class BatchSampler:
@@ -204,6 +207,9 @@ class BatchSampler:
     seed : int
         With ``epoch``, seeds the generator of every draw (order, crops, noise) so that an epoch is
         reproducible on its own, which is what makes resuming bitwise exact.
+    shuffle : bool
+    epoch_size : int
+        Trajectories per epoch, a fresh random subset each epoch; 0 = all.
     """
 
     def __init__(
@@ -215,6 +221,7 @@ class BatchSampler:
         lengths: tuple[int, int],
         seed: int,
         shuffle: bool = True,
+        epoch_size: int = 0,
     ):
         if task not in ("tracking", "forecasting"):
             raise EstimationError(f"unknown task {task!r} (tracking, forecasting)")
@@ -224,16 +231,18 @@ class BatchSampler:
             raise EstimationError(f"lengths {lengths} do not fit {task} on {data.length}-step trajectories")
         self.data, self.task, self.sigma = data, task, float(sigma)
         self.batch_size, self.lengths, self.seed, self.shuffle = int(batch_size), (a, b), int(seed), shuffle
+        self.per_epoch = min(int(epoch_size), data.n) if epoch_size > 0 else data.n
 
     def __len__(self) -> int:
-        return -(-self.data.n // self.batch_size)
+        return -(-self.per_epoch // self.batch_size)
 
     def epoch(self, epoch: int):
         """Yield the :class:`Batch` es of ``epoch``."""
         g = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
         n = self.data.n
         order = torch.randperm(n, generator=g).numpy() if self.shuffle else np.arange(n)
-        for k in range(0, n, self.batch_size):
+        order = order[: self.per_epoch]
+        for k in range(0, len(order), self.batch_size):
             rows = order[k : k + self.batch_size]
             yield self.make(rows, g)
 

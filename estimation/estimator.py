@@ -12,9 +12,11 @@ import torch
 from torch import nn
 
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
-from .data import Normaliser
+from .classical import FingerprintMatcher
+from .data import Normaliser, SequenceSet
 from .errors import EstimationError
-from .models import MODELS, build_network, count_parameters
+from .models import CANDIDATE_MODELS, MODELS, build_network, count_parameters
+from .models.candidates import candidate_features
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE"]
 
@@ -27,7 +29,7 @@ class TrainConfig:
 
     Attributes
     ----------
-    model : one of ``tn lstm gru rnn tcn conv1d``
+    model : one of ``tn tn-match lstm gru rnn tcn conv1d``
     task : ``tracking`` or ``forecasting``
     sigma : float, dB; noise of the training fingerprints
     epochs, batch_size, lr, dropout : the paper's optimisation settings
@@ -36,6 +38,7 @@ class TrainConfig:
     min_length, max_length : tracking crops of T steps, T uniform in this range (max 0 = trajectory length)
     t_obs, horizon : forecasting: observed steps and predicted steps
     seed : int
+    epoch_size : trajectories drawn (afresh, with fresh noise) per epoch; 0 = all of them
     options : extra constructor arguments of the network (e.g. ``{"d": 64}``)
     """
 
@@ -54,6 +57,7 @@ class TrainConfig:
     t_obs: int = 5
     horizon: int = 2
     seed: int = 0
+    epoch_size: int = 0
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -64,6 +68,10 @@ class TrainConfig:
         for name in ("epochs", "batch_size", "min_length", "t_obs", "horizon"):
             if int(getattr(self, name)) < 1:
                 raise EstimationError(f"{name} must be at least 1 (got {getattr(self, name)})")
+        if self.epoch_size < 0:
+            raise EstimationError(f"epoch_size must not be negative (got {self.epoch_size})")
+        if self.model in CANDIDATE_MODELS and self.task != "tracking":
+            raise EstimationError(f"{self.model} estimates tracks only (task tracking)")
         if self.sigma < 0 or self.lr <= 0 or not 0 <= self.dropout < 1:
             raise EstimationError(f"bad sigma/lr/dropout ({self.sigma}, {self.lr}, {self.dropout})")
 
@@ -97,6 +105,7 @@ class Estimator(nn.Module):
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
         super().__init__()
         self.config, self.n_beams, self.n_bins, self.normaliser = config, n_beams, n_bins, normaliser
+        self.matcher: FingerprintMatcher | None = None
         self.net = build_network(
             config.model,
             n_beams,
@@ -115,17 +124,64 @@ class Estimator(nn.Module):
     def n_parameters(self) -> int:
         return count_parameters(self.net)
 
-    def forward(self, bits: torch.Tensor, y: torch.Tensor | None = None) -> torch.Tensor:
-        """Normalised output ``(B, T_out, 2)``; ``y`` (metres) enables teacher forcing where used."""
-        return self.net(bits, None if y is None else self.normaliser.to_unit(y))
+    @property
+    def uses_grid(self) -> bool:
+        """Whether the network reads the data set's grid (see :meth:`attach`)."""
+        return self.config.model in CANDIDATE_MODELS
+
+    def attach(self, data: Any) -> Estimator:
+        """Give a grid-reading network (``tn-match``) the grid of ``data`` (a :class:`SequenceSet`
+        or an opened ``mmwsim.Dataset``): its fingerprint likelihood proposes the candidates the
+        network chooses from. A no-op for the other networks; returns ``self``."""
+        if not self.uses_grid:
+            return self
+        if isinstance(data, SequenceSet):
+            pdp, xy, threshold = data.grid_pdp, data.grid_xy, data.threshold
+        else:
+            from .adapter import GridTable, dataset_threshold
+
+            table = GridTable(data)
+            pdp, xy, threshold = table.pdp, table.xy, dataset_threshold(data)
+        if self.matcher is None or self.matcher.grid_pdp is not pdp:
+            if pdp.shape[1:] != (self.n_beams, self.n_bins):
+                raise EstimationError(
+                    f"grid fingerprints are {tuple(pdp.shape[1:])}, the model expects "
+                    f"{(self.n_beams, self.n_bins)}"
+                )
+            self.matcher = FingerprintMatcher(pdp, xy, self.config.sigma, threshold)
+            self.matcher.scores(torch.zeros((1, self.n_beams, self.n_bins)))  # build the tables now
+        return self
+
+    def inputs(self, bits: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
+        grid-reading network its candidates ``(xy (B, T, k, 2) metres, posteriors (B, T, k, P))``
+        (see :func:`~estimation.models.candidates.candidate_features`)."""
+        if not self.uses_grid:
+            return bits
+        if self.matcher is None:
+            raise EstimationError(
+                f"{self.name} reads the data set's grid: call attach(sequence_set) before predicting"
+            )
+        score, rows = self.matcher.candidates(bits, self.net.search)
+        xy = torch.from_numpy(self.matcher.grid_xy[rows.numpy()]).float()
+        return candidate_features(xy, score, self.net.k)
+
+    def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor:
+        """Normalised output ``(B, T_out, 2)`` for bits or :meth:`inputs`; ``y`` (metres) enables
+        teacher forcing where used."""
+        if self.uses_grid:
+            xy, post = self.inputs(x) if isinstance(x, torch.Tensor) else x
+            return self.normaliser.to_unit(self.net(xy, post))
+        return self.net(x, None if y is None else self.normaliser.to_unit(y))
 
     @torch.no_grad()
-    def predict(self, bits: torch.Tensor) -> torch.Tensor:
-        """``bits (B, T, M, N_s)`` -> positions ``(B, T_out, 2)`` float32, metres."""
+    def predict(self, x: Any) -> torch.Tensor:
+        """``bits (B, T, M, N_s)`` (or their :meth:`inputs`) -> positions ``(B, T_out, 2)`` float32,
+        metres."""
         was = self.training
         self.eval()
         try:
-            return self.normaliser.to_metres(self.net(bits))
+            return self.normaliser.to_metres(self(x))
         finally:
             self.train(was)
 

@@ -44,15 +44,31 @@ class NetworkMethod:
         self.n_parameters, self.train_seconds, self.epochs = estimator.n_parameters, train_seconds, epochs
 
     def for_sigma(self, sigma: float, validation: SequenceSet | None) -> NetworkMethod:
+        if self.est.uses_grid:
+            if validation is None:
+                raise EstimationError(f"{self.name} needs the data set's grid (pass validation trajectories)")
+            self.est.attach(validation)
         return self
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
         """Predictions for inputs cropped to each length: ``{T_in: (pred (n, T_out, 2), seconds)}``."""
         out = {}
+        cached, per_step = None, 0.0
+        if self.est.uses_grid:  # candidates are per step: search once over the longest crop
+            t0 = time.perf_counter()
+            cached = self.est.inputs(bits[:, : max(lengths)].float())
+            per_step = (time.perf_counter() - t0) / max(lengths)
         for L in lengths:
             t0 = time.perf_counter()
-            preds = [self.est.predict(bits[k : k + _BATCH, :L].float()) for k in range(0, len(bits), _BATCH)]
-            out[L] = (torch.cat(preds).numpy().astype(np.float64), time.perf_counter() - t0)
+            preds = []
+            for k in range(0, len(bits), _BATCH):
+                x = (
+                    bits[k : k + _BATCH, :L].float()
+                    if cached is None
+                    else tuple(c[k : k + _BATCH, :L] for c in cached)
+                )
+                preds.append(self.est.predict(x))
+            out[L] = (torch.cat(preds).numpy().astype(np.float64), time.perf_counter() - t0 + per_step * L)
         return out
 
 

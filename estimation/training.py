@@ -19,7 +19,8 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +29,11 @@ import torch
 from torch import nn
 
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
-from .data import BatchSampler, SequenceSet
+from .data import Batch, BatchSampler, SequenceSet
 from .errors import EstimationError
 from .estimator import MODEL_FILE, Estimator, TrainConfig
 
-__all__ = ["train", "CHECKPOINT_FILE", "RUN_FILE", "read_run_info"]
+__all__ = ["train", "record_training", "CHECKPOINT_FILE", "RUN_FILE", "read_run_info"]
 
 CHECKPOINT_FILE = "checkpoint.pt"
 RUN_FILE = "run.json"
@@ -65,12 +66,12 @@ def _write_json(path: Path, obj: Any) -> None:
 
 
 @torch.no_grad()
-def _validate(est: Estimator, sampler: BatchSampler) -> tuple[float, float]:
+def _validate(est: Estimator, batches: Iterable[Batch]) -> tuple[float, float]:
     """Mean loss (normalised MSE) and mean per-trajectory RMSE (metres) on fixed-noise batches."""
     est.eval()
     loss_sum, n, rmse = 0.0, 0, []
-    for b in sampler.epoch(0):  # epoch 0 always: the same noise every time, so epochs are comparable
-        out = est(b.bits)
+    for b in batches:
+        out = est(b.bits if b.inputs is None else b.inputs)
         loss_sum += float(nn.functional.mse_loss(out, est.normaliser.to_unit(b.y), reduction="sum")) / 2
         n += out.shape[0] * out.shape[1]
         err = est.normaliser.to_metres(out) - b.y
@@ -78,10 +79,43 @@ def _validate(est: Estimator, sampler: BatchSampler) -> tuple[float, float]:
     return loss_sum / max(n, 1), float(torch.cat(rmse).mean())
 
 
-def _record(run: Path, cfg: TrainConfig, history: dict[str, list[float]]) -> None:
+def record_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
+    """Log a training history into an open :class:`mmwsim.recording.Recording`.
+
+    One row per epoch on the ``epoch`` timeline (1-based) at ``training/<name>/loss/train``,
+    ``training/<name>/loss/validation``, ``training/<name>/rmse_m/validation`` (metres) and
+    ``training/<name>/learning_rate``.
+
+    Parameters
+    ----------
+    rec : mmwsim.recording.Recording
+    name : str
+        Label of the run in the entity path (usually the model, e.g. ``tn``).
+    history : dict
+        Per-epoch lists ``train_loss``, ``val_loss``, ``val_rmse`` and ``lr``, as stored in a
+        run's ``checkpoint.pt``.
+
+    Returns
+    -------
+    int
+        Number of epochs logged.
+    """
     import rerun as rr
 
-    from mmwsim.recording import Entity, Recording, Timeline
+    from mmwsim.recording import Entity, Timeline
+
+    n = len(history["train_loss"])
+    for e in range(n):
+        rec.set_time(Timeline.EPOCH, e + 1)
+        rec.log(Entity.training(name, "loss/train"), rr.Scalars(history["train_loss"][e]))
+        rec.log(Entity.training(name, "loss/validation"), rr.Scalars(history["val_loss"][e]))
+        rec.log(Entity.training(name, "rmse_m/validation"), rr.Scalars(history["val_rmse"][e]))
+        rec.log(Entity.training(name, "learning_rate"), rr.Scalars(history["lr"][e]))
+    return n
+
+
+def _record(run: Path, cfg: TrainConfig, history: dict[str, list[float]]) -> None:
+    from mmwsim.recording import Recording
 
     with Recording(
         run / RECORDING_FILE,
@@ -89,12 +123,7 @@ def _record(run: Path, cfg: TrainConfig, history: dict[str, list[float]]) -> Non
         families=("training",),
         config=json.loads(cfg.to_json()),
     ) as rec:
-        for e in range(len(history["train_loss"])):
-            rec.set_time(Timeline.EPOCH, e + 1)
-            rec.log(Entity.training(cfg.model, "loss/train"), rr.Scalars(history["train_loss"][e]))
-            rec.log(Entity.training(cfg.model, "loss/validation"), rr.Scalars(history["val_loss"][e]))
-            rec.log(Entity.training(cfg.model, "rmse_m/validation"), rr.Scalars(history["val_rmse"][e]))
-            rec.log(Entity.training(cfg.model, "learning_rate"), rr.Scalars(history["lr"][e]))
+        record_training(rec, cfg.model, history)
 
 
 def _prefetch(batches: Iterator, depth: int = 3) -> Iterator:
@@ -187,12 +216,20 @@ def train(
         raise EstimationError("training and validation fingerprints differ in shape")
 
     lengths = _lengths(cfg, train_set)
-    sampler = BatchSampler(train_set, cfg.task, cfg.sigma, cfg.batch_size, lengths, cfg.seed)
+    sampler = BatchSampler(
+        train_set, cfg.task, cfg.sigma, cfg.batch_size, lengths, cfg.seed, epoch_size=cfg.epoch_size
+    )
     val_lengths = (lengths[1], lengths[1]) if cfg.task == "tracking" else lengths
     val_sampler = BatchSampler(val_set, cfg.task, cfg.sigma, 256, val_lengths, cfg.seed + 1, shuffle=False)
 
     torch.manual_seed(cfg.seed)
-    est = Estimator(cfg, train_set.n_beams, train_set.n_bins, train_set.normaliser())
+    est = Estimator(cfg, train_set.n_beams, train_set.n_bins, train_set.normaliser()).attach(train_set)
+    same_grid = val_set.grid_pdp is train_set.grid_pdp or (
+        val_set.grid_pdp.shape == train_set.grid_pdp.shape
+        and torch.equal(val_set.grid_pdp, train_set.grid_pdp)
+    )
+    if est.uses_grid and not same_grid:
+        raise EstimationError(f"{cfg.model} needs training and validation sets on one grid")
     opt = torch.optim.Adam(est.net.parameters(), lr=cfg.lr, foreach=True)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.lr_factor, patience=cfg.lr_patience)
     history: dict[str, list[float]] = {k: [] for k in _HISTORY_KEYS}
@@ -235,6 +272,12 @@ def train(
     }
     _write_json(run / RUN_FILE, info)
 
+    # Validation noise is that of epoch 0 every time, so epochs are comparable. A grid-reading
+    # network's candidate search is the costly part and depends on the noise alone: done once.
+    val_batches = None
+    if est.uses_grid:
+        val_batches = [replace(b, bits=b.bits[:0], inputs=est.inputs(b.bits)) for b in val_sampler.epoch(0)]
+
     started = time.perf_counter()
     while not done and epoch < cfg.epochs:
         if time_limit is not None and time.perf_counter() - started >= time_limit:
@@ -244,7 +287,8 @@ def train(
         torch.manual_seed(cfg.seed * 7919 + epoch + 1)  # dropout masks of this epoch
         est.train()
         total, count = 0.0, 0
-        batches = _prefetch(sampler.epoch(epoch))
+        # The worker thread also prepares what the network reads (candidate search for tn-match).
+        batches = _prefetch(replace(b, inputs=est.inputs(b.bits)) for b in sampler.epoch(epoch))
         if progress:
             from tqdm import tqdm
 
@@ -252,14 +296,14 @@ def train(
                 batches, total=len(sampler), desc=f"{cfg.model} epoch {epoch + 1}", leave=False, unit="batch"
             )
         for b in batches:
-            out = est(b.bits, b.y)
+            out = est(b.inputs, b.y)
             loss = nn.functional.mse_loss(out, est.normaliser.to_unit(b.y))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
             total += float(loss.detach()) * len(b.rows)
             count += len(b.rows)
-        val_loss, val_rmse = _validate(est, val_sampler)
+        val_loss, val_rmse = _validate(est, val_batches if val_batches is not None else val_sampler.epoch(0))
         lr = opt.param_groups[0]["lr"]
         sched.step(val_loss)
         epoch += 1

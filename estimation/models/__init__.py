@@ -8,12 +8,15 @@ from __future__ import annotations
 from torch import nn
 
 from ..errors import EstimationError
+from .candidates import CandidateTransformer
 from .conv import Conv1DNet, TCNNet
 from .recurrent import RecurrentNet
 from .transformer import TransformerNet
 
 __all__ = [
     "MODELS",
+    "CANDIDATE_MODELS",
+    "CandidateTransformer",
     "build_network",
     "count_parameters",
     "TransformerNet",
@@ -22,7 +25,8 @@ __all__ = [
     "Conv1DNet",
 ]
 
-MODELS = ("tn", "lstm", "gru", "rnn", "tcn", "conv1d")
+MODELS = ("tn", "tn-match", "lstm", "gru", "rnn", "tcn", "conv1d")
+CANDIDATE_MODELS = ("tn-match",)  # networks that choose among the grid's fingerprint-match candidates
 
 
 def build_network(
@@ -32,6 +36,10 @@ def build_network(
     common = dict(n_beams=n_beams, n_bins=n_bins, task=task, horizon=horizon, dropout=dropout, **options)
     if name == "tn":
         return TransformerNet(**common)
+    if name == "tn-match":
+        if task != "tracking":
+            raise EstimationError(f"{name} estimates tracks only (task tracking)")
+        return CandidateTransformer(dropout=dropout, **options)
     if name in ("lstm", "gru", "rnn"):
         return RecurrentNet(name, **common)
     if name == "tcn":

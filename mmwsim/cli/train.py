@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-MODELS = ("tn", "lstm", "gru", "rnn", "tcn", "conv1d")  # mirrors estimation.MODELS without importing torch
+MODELS = (
+    "tn",
+    "tn-match",
+    "lstm",
+    "gru",
+    "rnn",
+    "tcn",
+    "conv1d",
+)  # mirrors estimation.MODELS without importing torch
 
 EPILOG = """\
 The run folder RUN receives run.json (settings and data description), checkpoint.pt (after every
@@ -18,7 +26,7 @@ toy[:n=N,length=L,seed=S] for a small synthetic one.
 def register(sub) -> None:
     p = sub.add_parser(
         "train",
-        help="train a trajectory-estimation network (tn, lstm, gru, rnn, tcn, conv1d)",
+        help="train a trajectory-estimation network (tn, tn-match, lstm, gru, rnn, tcn, conv1d)",
         description=__doc__,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -47,6 +55,12 @@ def register(sub) -> None:
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
+    p.add_argument(
+        "--epoch-size",
+        type=int,
+        default=0,
+        help="trajectories per epoch, a fresh random subset each epoch (default 0 = all)",
+    )
     p.add_argument(
         "--option",
         action="append",
@@ -104,6 +118,7 @@ def _train(args) -> int:
         t_obs=args.t_obs,
         horizon=args.horizon,
         seed=args.seed,
+        epoch_size=args.epoch_size,
         options=dict(_option(o) for o in args.option),
     )
     try:  # reject a bad --option before reading the data

@@ -1,0 +1,156 @@
+"""Transformer over fingerprint-match candidates (``tn-match``): our model, beyond the paper.
+
+The paper's transformer (``tn``) must learn the whole map from fingerprints to positions from the
+training trajectories, so it cannot place a user in a region no training trajectory visited. This
+model reads the data set's grid instead: for every step the exact fingerprint likelihood
+(:class:`~estimation.classical.FingerprintMatcher`) proposes its ``K`` most likely grid points, and a
+transformer encoder attends over all candidates of all steps to pick the ones that form a plausible
+motion. Each step's estimate is a convex combination of that step's candidates, so the model only
+sees relative geometry and likelihoods: it is translation invariant and does not depend on where
+the training trajectories ran.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import torch
+from torch import nn
+
+from .embedding import sinusoidal_encoding
+
+__all__ = ["CandidateTransformer", "candidate_features", "motion_posterior", "STEP_SIGMAS"]
+
+_SCALE = 32.0  # metres; relative candidate offsets are divided by this
+_LOGP_FLOOR = -30.0
+STEP_SIGMAS = (
+    2.0,
+    3.0,
+    10.0,
+)  # metres per step: pedestrians to vehicles  # step-wise log posteriors below this carry no information for the ranking
+
+
+def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> torch.Tensor:
+    """Log posterior of each candidate given all steps, under a random walk between candidates.
+
+    Forward-backward over the candidates of consecutive steps with transition weight
+    ``exp(-|x_t - x_t+1|^2 / (2 s^2))``: the classical hidden-Markov smoother, which the network
+    starts from and corrects.
+
+    Parameters
+    ----------
+    xy : (B, T, K, 2) float, metres
+    logp : (B, T, K) float
+        Step-wise log likelihoods (any per-step offset).
+    step_sigma : float, metres
+        Scale ``s`` of one step's displacement.
+
+    Returns
+    -------
+    (B, T, K) float32 log posteriors, normalised per step
+    """
+    T = xy.shape[1]
+    trans = -torch.cdist(xy[:, :-1], xy[:, 1:]).square() / (2 * step_sigma**2)  # (B, T-1, K, K)
+    fwd = [logp[:, 0]]
+    for t in range(1, T):
+        fwd.append(torch.logsumexp(fwd[-1][..., None] + trans[:, t - 1], dim=1) + logp[:, t])
+    bwd = [torch.zeros_like(logp[:, -1])]
+    for t in range(T - 2, -1, -1):
+        bwd.append(torch.logsumexp(trans[:, t] + (logp[:, t + 1] + bwd[-1])[:, None, :], dim=2))
+    post = torch.stack(fwd, 1) + torch.stack(bwd[::-1], 1)
+    return torch.log_softmax(post, dim=-1)
+
+
+@torch.no_grad()
+def candidate_features(
+    xy: torch.Tensor, score: torch.Tensor, k: int, block: int = 64
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` best candidates of every step after smoothing, with their posterior features.
+
+    Parameters
+    ----------
+    xy : (B, T, K, 2) float, metres
+        The matcher's candidates of every step, ``K >= k``.
+    score : (B, T, K) float
+        Their log-likelihoods.
+    k : int
+        Candidates kept per step, ranked by their best :func:`motion_posterior`.
+    block : int
+        Sequences smoothed at once (bounds the ``(block, T, K, K)`` transition tensor).
+
+    Returns
+    -------
+    xy : (B, T, k, 2) float32, metres
+    post : (B, T, k, 1 + len(STEP_SIGMAS)) float32
+        Step-wise log posterior under a flat prior, then the motion posteriors at walking and
+        driving step scales, each clipped at -30.
+    """
+    outs_xy, outs_post = [], []
+    for a in range(0, xy.shape[0], block):
+        x, sc = xy[a : a + block].float(), score[a : a + block].float()
+        logp = torch.log_softmax(sc, dim=-1)
+        post = torch.stack([logp] + [motion_posterior(x, logp, s) for s in STEP_SIGMAS], -1)
+        keep = post[..., 1:].amax(-1).topk(min(k, x.shape[2]), dim=-1).indices  # (b, T, k)
+        outs_xy.append(torch.gather(x, 2, keep[..., None].expand(-1, -1, -1, 2)))
+        outs_post.append(torch.gather(post, 2, keep[..., None].expand(-1, -1, -1, post.shape[-1])))
+    return torch.cat(outs_xy), torch.cat(outs_post).clamp(min=_LOGP_FLOOR)
+
+
+class CandidateTransformer(nn.Module):
+    """Candidates of every step in, positions ``(B, T, 2)`` in metres out.
+
+    Parameters
+    ----------
+    search : int
+        Candidates per step proposed by the matcher and smoothed (:func:`candidate_features`).
+    k : int
+        Candidates per step the transformer attends over.
+    d, heads, layers, ff : transformer width, heads, encoder layers, feed-forward width.
+    dropout : float
+    """
+
+    def __init__(
+        self,
+        search: int = 256,
+        k: int = 32,
+        d: int = 64,
+        heads: int = 2,
+        layers: int = 2,
+        ff: int = 128,
+        dropout: float = 0.01,
+    ):
+        super().__init__()
+        if not 1 <= k <= search:
+            raise ValueError(f"need 1 <= k <= search (got k={k}, search={search})")
+        self.search, self.k, self.d = int(search), int(k), int(d)
+        n_post = 1 + len(STEP_SIGMAS)
+        self.embed = nn.Sequential(nn.Linear(2 + n_post, d), nn.ReLU(), nn.Linear(d, d))
+        self.rank = nn.Embedding(self.k, d)
+        layer = nn.TransformerEncoderLayer(d, heads, ff, dropout, batch_first=True)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="enable_nested_tensor is True")
+            self.encoder = nn.TransformerEncoder(layer, layers)
+        self.logit = nn.Linear(d, 1)
+        self.offset = nn.Linear(d, 2)
+        # Start as the walking-scale hidden-Markov smoother: unit weight on its posterior, the
+        # learned terms at zero, so training starts from the classical answer.
+        self.prior = nn.Parameter(torch.tensor([0.0, 1.0] + [0.0] * (n_post - 2)))
+        for lin in (self.logit, self.offset):
+            nn.init.zeros_(lin.weight)
+            nn.init.zeros_(lin.bias)
+
+    def forward(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
+        """``xy (B, T, k, 2)`` metres and ``post (B, T, k, P)`` from :func:`candidate_features` ->
+        positions ``(B, T, 2)`` metres."""
+        B, T, K, _ = xy.shape
+        # Anchor: coordinate-wise median of the steps' best candidates, robust to an alias far away.
+        anchor = xy[:, :, 0].median(dim=1).values[:, None, None]
+        feats = torch.cat([(xy - anchor) / _SCALE, post / 10.0], dim=-1)
+        h = self.embed(feats) + self.rank.weight[:K] + sinusoidal_encoding(torch.arange(T), self.d)[:, None]
+        h = self.encoder(h.reshape(B, T * K, self.d)).reshape(B, T, K, self.d)
+        logits = self.logit(h)[..., 0] + (post * self.prior).sum(-1)
+        w = torch.softmax(logits, dim=-1)  # (B, T, K)
+        rel = (w[..., None] * (xy - anchor)).sum(2)
+        # A small learned correction lets the estimate leave the grid points' convex hull by a little.
+        corr = torch.tanh((w[..., None] * self.offset(h)).sum(2))
+        return anchor[:, :, 0] + rel + corr

@@ -1,0 +1,150 @@
+"""``mmwsim demo --tiny``: the whole chain runs and its one recording holds every stage."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+from rrd_helpers import blueprint_count, entity_rows
+
+from mmwsim.cli import main
+from mmwsim.demo import MODEL
+from mmwsim.trajectories import read_trajectories
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--tiny", "--out", str(out), "--seed", "1", "--quiet"]) == 0
+    return out
+
+
+def _rows_under(rows: Counter, prefix: str) -> int:
+    return sum(n for path, n in rows.items() if path == prefix or path.startswith(prefix + "/"))
+
+
+def _strip(path, entity: str) -> np.ndarray:
+    """The one static 2D line strip logged at ``entity``, (n, 2)."""
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        if chunk.entity_path == entity:
+            batch = chunk.to_record_batch()
+            strips = batch.column(batch.schema.names.index("LineStrips2D:strips")).to_pylist()
+            return np.asarray(strips[0][0], dtype=np.float64)
+    raise AssertionError(f"{entity} not in {path}")
+
+
+def test_recording_holds_every_stage(demo, capsys):
+    rrd = demo / "demo.rrd"
+    rows = entity_rows(rrd)
+    for family in (
+        "/meta/config",
+        "/world/scene",
+        "/world/tx",
+        "/world/rays",
+        "/world/coverage",
+        "/bff",
+        f"/training/{MODEL}",
+        "/planner/tree",
+        "/planner/ellipse",
+        "/planner/path",
+        "/planner/cost",
+        "/planner/corridor",
+    ):
+        assert _rows_under(rows, family) > 0, family
+    ids = {path.split("/")[2] for path in rows if path.startswith("/trajectories/")}
+    assert ids
+    for ident in ids:
+        assert rows[f"/trajectories/{ident}/true"] > 0 and rows[f"/trajectories/{ident}/{MODEL}"] > 0
+    summary = json.loads((demo / "summary.json").read_text())
+    assert rows[f"/training/{MODEL}/loss/validation"] == summary["epochs"] > 0
+    # fingerprints and PDPs along the planned-along trajectory, one per step
+    assert rows[f"/bff/trajectory_{summary['trajectory_id']}/fingerprint"] == 7
+    timelines = set()
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        timelines.update(chunk.timeline_names)
+    assert {"beam", "step", "epoch", "iteration"} <= timelines
+    assert blueprint_count(rrd) == 1
+
+
+def test_summary_matches_the_recording_and_the_data(demo):
+    summary = json.loads((demo / "summary.json").read_text())
+    rrd = demo / "demo.rrd"
+    # The first trajectory shown is the one planned along: its true path is a stored held-out
+    # trajectory, and the RMSE reported is that of the estimate drawn next to it.
+    true = _strip(rrd, "/trajectories/test_holdout-0/true")
+    estimate = _strip(rrd, f"/trajectories/test_holdout-0/{MODEL}")
+    test = read_trajectories(demo / "dataset-tiny.zarr", "test")
+    stored = test.positions[test.ids == summary["trajectory_id"]][0]
+    assert test.holdout[test.ids == summary["trajectory_id"]][0]
+    np.testing.assert_allclose(true, stored, atol=1e-4)
+    rmse = np.sqrt(((estimate - true) ** 2).sum(axis=1).mean())
+    assert rmse == pytest.approx(summary["rmse_m"], rel=1e-4)
+    # The corridor is drawn around that estimate, and the planner's path is no shorter than the optimum.
+    np.testing.assert_allclose(_strip(rrd, "/planner/corridor/trajectories"), estimate, atol=1e-4)
+    assert summary["solved"]
+    assert summary["optimum_m"] - 1e-6 <= summary["path_length_m"] < 1.5 * summary["optimum_m"]
+    path = _strip(rrd, "/planner/optimum")
+    assert np.linalg.norm(np.diff(path, axis=0), axis=1).sum() == pytest.approx(
+        summary["optimum_m"], rel=1e-5
+    )
+
+
+def test_rerun_into_the_same_folder_resumes_with_the_same_results(demo, capsys):
+    before = json.loads((demo / "summary.json").read_text())
+    assert main(["demo", "--tiny", "--out", str(demo), "--seed", "1", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "reusing the finished data set" in out and "resuming tn" in out
+    after = json.loads((demo / "summary.json").read_text())
+    for key in ("trajectory_id", "rmse_m", "holdout_rmse_m", "path_length_m", "optimum_m", "epochs"):
+        assert after[key] == before[key], key
+    assert not list(demo.glob(".*partial*")) and not list(demo.glob(".*.rrd"))
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--seed", "-1"], "--seed"),
+        (["--rrd", "demo.txt"], ".rrd"),
+        (["--out", "FILE"], "not a folder"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, words):
+    (tmp_path / "FILE").write_text("x")
+    args = [str(tmp_path / a) if a in ("FILE", "demo.txt") else a for a in args]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "out")]
+    assert main(["demo", "--tiny", "--quiet", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_free_points_snap_into_the_corridor_clear_of_buildings():
+    import planning
+    from mmwsim import load_scene
+    from mmwsim.demo import farthest_free_point, nearest_free_point
+
+    scene = load_scene("default")
+    corridor = planning.Corridor.from_array(np.array([[200.0, 150.0], [200.0, 100.0]]), 10.0)  # on the avenue
+    space = planning.FreeSpace(scene, radius=0.5, corridor=corridor)
+    np.testing.assert_array_equal(nearest_free_point(space, (201.0, 120.0)), (201.0, 120.0))
+    p = nearest_free_point(space, (150.0, 125.0))  # inside a building west of the avenue
+    assert space.exact_state_valid(*p) and space.in_corridor(*p)
+    assert 190.0 <= p[0] < 190.5 and p[1] == pytest.approx(125.0, abs=0.25)
+    q = farthest_free_point(space, (200.0, 150.0))
+    assert space.exact_state_valid(*q) and space.in_corridor(*q)
+    assert np.hypot(q[0] - 200.0, q[1] - 150.0) > 59.0  # the far end of the 50 m + 10 m corridor
+
+
+def test_importing_the_demo_loads_neither_torch_nor_ompl():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, mmwsim.demo, mmwsim.cli.demo; "
+        "sys.exit(1 if {'torch', 'ompl', 'estimation', 'planning'} & set(sys.modules) else 0)"
+    )
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

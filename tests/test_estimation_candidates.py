@@ -1,0 +1,97 @@
+"""tn-match: the transformer over fingerprint-match candidates and its hidden-Markov smoother."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from estimation import EstimationError, Estimator, TrainConfig, noisy_bits, train, trajectory_rmse
+from estimation.models.candidates import (
+    STEP_SIGMAS,
+    CandidateTransformer,
+    candidate_features,
+    motion_posterior,
+)
+from estimation.synthetic import toy_sequence_set
+
+
+def test_motion_posterior_one_step_is_the_likelihood():
+    logp = torch.log_softmax(torch.tensor([[[0.0, 1.0, -2.0]]]), -1)
+    xy = torch.rand(1, 1, 3, 2)
+    assert torch.allclose(motion_posterior(xy, logp, 3.0), logp, atol=1e-6)
+
+
+def test_motion_posterior_two_steps_by_hand():
+    """Two steps, two candidates each: the posterior of candidate i at step 0 is proportional to
+    l0_i * sum_j A_ij l1_j with A_ij = exp(-d_ij^2 / 2 s^2)."""
+    xy = torch.tensor([[[[0.0, 0.0], [10.0, 0.0]], [[1.0, 0.0], [10.0, 3.0]]]])
+    like = torch.tensor([[[0.6, 0.4], [0.3, 0.7]]])
+    s = 2.0
+    got = motion_posterior(xy, like.log(), s).exp()[0]
+    d = torch.cdist(xy[0, 0], xy[0, 1])
+    A = torch.exp(-(d**2) / (2 * s**2))
+    p0 = like[0, 0] * (A @ like[0, 1])
+    p1 = like[0, 1] * (A.T @ like[0, 0])
+    assert torch.allclose(got[0], p0 / p0.sum(), atol=1e-6)
+    assert torch.allclose(got[1], p1 / p1.sum(), atol=1e-6)
+
+
+def test_candidate_features_keep_the_smoothed_best():
+    g = torch.Generator().manual_seed(0)
+    xy = torch.rand(3, 4, 20, 2, generator=g) * 100
+    score = torch.randn(3, 4, 20, generator=g)
+    kxy, post = candidate_features(xy, score, 5, block=2)
+    assert kxy.shape == (3, 4, 5, 2) and post.shape == (3, 4, 5, 1 + len(STEP_SIGMAS))
+    full = torch.stack([motion_posterior(xy, torch.log_softmax(score, -1), s) for s in STEP_SIGMAS], -1)
+    best = full.amax(-1).max(-1).values  # the kept first candidate is the best smoothed one
+    assert torch.allclose(post[:, :, 0, 1:].amax(-1), best.clamp(min=-30), atol=1e-6)
+    assert bool((post >= -30).all())
+
+
+def test_untrained_network_is_the_walking_smoother_and_translation_invariant():
+    torch.manual_seed(0)
+    net = CandidateTransformer(search=20, k=6, d=16, ff=32, dropout=0.0).eval()
+    g = torch.Generator().manual_seed(1)
+    xy, post = candidate_features(
+        torch.rand(2, 5, 20, 2, generator=g) * 50, torch.randn(2, 5, 20, generator=g), 6
+    )
+    out = net(xy, post)
+    w = torch.softmax(post[..., 1], -1)  # weight of the first (2 m) motion posterior
+    assert torch.allclose(out, (w[..., None] * xy).sum(2), atol=1e-4)
+    shift = torch.tensor([123.0, -45.0])
+    assert torch.allclose(net(xy + shift, post), out + shift, atol=1e-3)
+
+
+def test_tn_match_needs_the_grid_and_tracks_only():
+    d = toy_sequence_set(8, 4, nx=16, ny=16, n_beams=4, n_bins=8)
+    est = Estimator(TrainConfig(model="tn-match", options={"search": 16, "k": 4}), 4, 8, d.normaliser())
+    with pytest.raises(EstimationError, match="attach"):
+        est.predict(torch.zeros(1, 3, 4, 8))
+    assert est.attach(d).predict(torch.zeros(1, 3, 4, 8)).shape == (1, 3, 2)
+    with pytest.raises(EstimationError, match="tracks only"):
+        TrainConfig(model="tn-match", task="forecasting")
+
+
+def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
+    """On a toy grid, the trained network's tracks are better than the likelihood's best point."""
+    torch.manual_seed(0)
+    tr = toy_sequence_set(256, 6, seed=1)
+    va = toy_sequence_set(64, 6, seed=2)
+    cfg = TrainConfig(
+        model="tn-match",
+        epochs=2,
+        epoch_size=128,
+        sigma=6.0,
+        options={"search": 32, "k": 8, "d": 16, "ff": 32},
+    )
+    summary = train(tr, va, cfg, tmp_path / "run", progress=False, record=False, log=lambda s: None)
+    assert summary["epochs"] == 2 and math.isfinite(summary["best_val_rmse"])
+    est = Estimator.load(tmp_path / "run").attach(va)
+    bits = noisy_bits(va, 6.0, torch.Generator().manual_seed(3))
+    pred = est.predict(bits).numpy()
+    per_step = est.matcher.match(bits)
+    assert trajectory_rmse(pred, va.positions).mean() < trajectory_rmse(per_step, va.positions).mean()
+    assert np.isfinite(pred).all()

@@ -30,6 +30,7 @@ def main() -> None:
     ap.add_argument("--n-train", type=int, default=4000, help="synthetic training trajectories")
     ap.add_argument("--max-epochs", type=int, default=40)
     ap.add_argument("--patience", type=int, default=4)
+    ap.add_argument("--epoch-size", type=int, default=0, help="trajectories per epoch (default 0 = all)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -53,9 +54,11 @@ def main() -> None:
     )
     with tempfile.TemporaryDirectory() as tmp:
         for m in args.models:
-            cfg = TrainConfig(model=m, epochs=args.max_epochs, patience=args.patience)
+            cfg = TrainConfig(
+                model=m, epochs=args.max_epochs, patience=args.patience, epoch_size=args.epoch_size
+            )
             s = train(tr, va, cfg, f"{tmp}/{m}", progress=False, record=False, log=lambda *a: None)
-            est = Estimator.load(f"{tmp}/{m}")
+            est = Estimator.load(f"{tmp}/{m}").attach(va)
             est.predict(bits[:64])
             t0 = time.perf_counter()
             for _ in range(reps):

@@ -152,18 +152,27 @@ class Estimator(nn.Module):
             self.matcher.scores(torch.zeros((1, self.n_beams, self.n_bins)))  # build the tables now
         return self
 
-    def inputs(self, bits: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
-        """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
-        grid-reading network its candidates ``(xy (B, T, k, 2) metres, posteriors (B, T, k, P))``
-        (see :func:`~estimation.models.candidates.candidate_features`)."""
-        if not self.uses_grid:
-            return bits
+    def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A grid-reading network's per-step candidates for ``bits (B, T, M, N_s)``: the matcher's
+        most likely grid points ``xy (B, T, K, 2)`` metres with their log-likelihoods ``(B, T, K)``.
+        Each step's are its own, so the candidates of a sequence's prefix are a prefix of these."""
         if self.matcher is None:
             raise EstimationError(
-                f"{self.name} reads the data set's grid: call attach(sequence_set) before predicting"
+                f"{self.name} reads the data set's grid: call attach(dataset) before predicting"
             )
         score, rows = self.matcher.candidates(bits, self.net.search)
-        xy = torch.from_numpy(self.matcher.grid_xy[rows.numpy()]).float()
+        return torch.from_numpy(self.matcher.grid_xy[rows.numpy()]).float(), score
+
+    def inputs(
+        self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None
+    ) -> Any:
+        """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
+        grid-reading network its smoothed candidates ``(xy (B, T, k, 2) metres, posteriors
+        (B, T, k, P))`` (see :func:`~estimation.models.candidates.candidate_features`), from the
+        bits or from their :meth:`search` result ``found``."""
+        if not self.uses_grid:
+            return bits
+        xy, score = self.search(bits) if found is None else found
         return candidate_features(xy, score, self.net.k)
 
     def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor:

@@ -53,20 +53,19 @@ class NetworkMethod:
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
         """Predictions for inputs cropped to each length: ``{T_in: (pred (n, T_out, 2), seconds)}``."""
         out = {}
-        cached, per_step = None, 0.0
-        if self.est.uses_grid:  # candidates are per step: search once over the longest crop
+        found, per_step = None, 0.0
+        if self.est.uses_grid:  # the grid search is per step: once over the longest crop
             t0 = time.perf_counter()
-            cached = self.est.inputs(bits[:, : max(lengths)].float())
+            found = self.est.search(bits[:, : max(lengths)].float())
             per_step = (time.perf_counter() - t0) / max(lengths)
         for L in lengths:
             t0 = time.perf_counter()
             preds = []
             for k in range(0, len(bits), _BATCH):
-                x = (
-                    bits[k : k + _BATCH, :L].float()
-                    if cached is None
-                    else tuple(c[k : k + _BATCH, :L] for c in cached)
-                )
+                if found is None:
+                    x = bits[k : k + _BATCH, :L].float()
+                else:  # smoothing sees only the first L steps, as the network does
+                    x = self.est.inputs(found=tuple(f[k : k + _BATCH, :L] for f in found))
                 preds.append(self.est.predict(x))
             out[L] = (torch.cat(preds).numpy().astype(np.float64), time.perf_counter() - t0 + per_step * L)
         return out

@@ -95,3 +95,17 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     per_step = est.matcher.match(bits)
     assert trajectory_rmse(pred, va.positions).mean() < trajectory_rmse(per_step, va.positions).mean()
     assert np.isfinite(pred).all()
+
+
+def test_evaluation_of_a_prefix_does_not_see_later_steps():
+    """The per-length evaluation searches once over the longest crop, but smooths each prefix alone."""
+    from estimation import NetworkMethod
+
+    torch.manual_seed(0)
+    d = toy_sequence_set(6, 6, nx=16, ny=16, n_beams=4, n_bins=8)
+    est = Estimator(TrainConfig(model="tn-match", options={"search": 16, "k": 4}), 4, 8, d.normaliser())
+    est.attach(d)
+    bits = noisy_bits(d, 6.0, torch.Generator().manual_seed(0))
+    out = NetworkMethod(est, "tn-match").for_sigma(6.0, d).predict_lengths(bits, [3, 6])
+    for L in (3, 6):
+        assert np.allclose(out[L][0], est.predict(bits[:, :L]).numpy(), atol=1e-5)

@@ -24,8 +24,15 @@ from .estimator import Estimator, TrainConfig
 from .evaluation import Evaluation, KnnKalmanMethod, NetworkMethod, evaluate, noisy_bits
 from .metrics import summarise, summarise_by_kind, trajectory_rmse
 from .models import MODELS, build_network, count_parameters
-from .report import accuracy_table, cost_table, plot_error_vs_length, record_trajectories, write_report
-from .training import read_run_info, record_training, train
+from .report import (
+    accuracy_table,
+    cost_table,
+    log_trajectories,
+    plot_error_vs_length,
+    record_trajectories,
+    write_report,
+)
+from .training import log_training, read_run_info, train
 
 __all__ = [
     "Batch",
@@ -54,11 +61,12 @@ __all__ = [
     "kalman_forecast",
     "load_checkpoint",
     "load_splits",
+    "log_trajectories",
     "noisy_bits",
     "open_dataset",
     "plot_error_vs_length",
     "read_run_info",
-    "record_training",
+    "log_training",
     "record_trajectories",
     "rts_smoother",
     "save_checkpoint",

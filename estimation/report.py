@@ -8,13 +8,21 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .data import KINDS
 from .evaluation import Evaluation
 
-__all__ = ["accuracy_table", "cost_table", "plot_error_vs_length", "write_report", "record_trajectories"]
+__all__ = [
+    "accuracy_table",
+    "cost_table",
+    "plot_error_vs_length",
+    "write_report",
+    "record_trajectories",
+    "log_trajectories",
+]
 
 _KIND_ORDER = ("vehicle", "pedestrian", "hybrid", "static", "all")
 
@@ -170,38 +178,43 @@ def write_report(ev: Evaluation, out: str | os.PathLike, noises: list[float]) ->
 def record_trajectories(ev: Evaluation, path: str | os.PathLike, footprints=None) -> None:
     """Rerun recording of predicted against true trajectories: ``trajectories/<split>-<i>/{true,<model>}``
     as 2D line strips (static) and the current position on the ``step`` timeline."""
-    import rerun as rr
-
-    from mmwsim.recording import Entity, Recording, Timeline
+    from mmwsim.recording import Recording
 
     with Recording(path, "evaluation", families=("trajectories",)) as rec:
-        if footprints:
-            strips = [np.asarray(p.exterior.coords) for p in footprints]
-            rec.log(
-                Entity.FOOTPRINTS, rr.LineStrips2D(strips, colors=[(120, 120, 120)], radii=0.3), static=True
-            )
-        for split, ex in ev.examples.items():
-            true = ex["true"]
-            sources = {"true": true} | {k: v for k, v in ex.items() if k not in ("true", "kind")}
-            for i in range(len(true)):
-                ident = f"{_slug(split)}-{i}"
-                label = KINDS[int(ex["kind"][i])]
+        log_trajectories(rec, ev, footprints)
+
+
+def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
+    """Log the entities of :func:`record_trajectories` into an open ``mmwsim.recording.Recording``."""
+    import rerun as rr
+
+    from mmwsim.recording import Entity, Timeline
+
+    if footprints:
+        strips = [np.asarray(p.exterior.coords) for p in footprints]
+        rec.log(Entity.FOOTPRINTS, rr.LineStrips2D(strips, colors=[(120, 120, 120)], radii=0.3), static=True)
+    for split, ex in ev.examples.items():
+        true = ex["true"]
+        sources = {"true": true} | {k: v for k, v in ex.items() if k not in ("true", "kind")}
+        for i in range(len(true)):
+            ident = f"{_slug(split)}-{i}"
+            label = KINDS[int(ex["kind"][i])]
+            for j, (src, arr) in enumerate(sources.items()):
+                colour = (20, 20, 20) if src == "true" else _colour(j)
+                ent = Entity.trajectory(ident, src)
+                rec.log(
+                    ent,
+                    rr.LineStrips2D([arr[i]], colors=[colour], radii=0.25, labels=[f"{label} {src}"]),
+                    static=True,
+                )
+            for t in range(true.shape[1]):
+                rec.set_time(Timeline.STEP, t)
                 for j, (src, arr) in enumerate(sources.items()):
                     colour = (20, 20, 20) if src == "true" else _colour(j)
-                    ent = Entity.trajectory(ident, src)
                     rec.log(
-                        ent,
-                        rr.LineStrips2D([arr[i]], colors=[colour], radii=0.25, labels=[f"{label} {src}"]),
-                        static=True,
+                        Entity.trajectory(ident, src) + "/now",
+                        rr.Points2D([arr[i][min(t, len(arr[i]) - 1)]], colors=[colour], radii=0.8),
                     )
-                for t in range(true.shape[1]):
-                    rec.set_time(Timeline.STEP, t)
-                    for j, (src, arr) in enumerate(sources.items()):
-                        colour = (20, 20, 20) if src == "true" else _colour(j)
-                        rec.log(
-                            Entity.trajectory(ident, src) + "/now",
-                            rr.Points2D([arr[i][min(t, len(arr[i]) - 1)]], colors=[colour], radii=0.8),
-                        )
 
 
 def _colour(j: int) -> tuple[int, int, int]:

@@ -33,7 +33,7 @@ from .data import Batch, BatchSampler, SequenceSet
 from .errors import EstimationError
 from .estimator import MODEL_FILE, Estimator, TrainConfig
 
-__all__ = ["train", "record_training", "CHECKPOINT_FILE", "RUN_FILE", "read_run_info"]
+__all__ = ["train", "log_training", "CHECKPOINT_FILE", "RUN_FILE", "read_run_info"]
 
 CHECKPOINT_FILE = "checkpoint.pt"
 RUN_FILE = "run.json"
@@ -60,9 +60,9 @@ def read_run_info(run: str | os.PathLike) -> dict[str, Any]:
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True))
-    os.replace(tmp, path)
+    from mmwsim.files import write_text_atomic
+
+    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=True))
 
 
 @torch.no_grad()
@@ -79,7 +79,7 @@ def _validate(est: Estimator, batches: Iterable[Batch]) -> tuple[float, float]:
     return loss_sum / max(n, 1), float(torch.cat(rmse).mean())
 
 
-def record_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
+def log_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
     """Log a training history into an open :class:`mmwsim.recording.Recording`.
 
     One row per epoch on the ``epoch`` timeline (1-based) at ``training/<name>/loss/train``,
@@ -123,7 +123,7 @@ def _record(run: Path, cfg: TrainConfig, history: dict[str, list[float]]) -> Non
         families=("training",),
         config=json.loads(cfg.to_json()),
     ) as rec:
-        record_training(rec, cfg.model, history)
+        log_training(rec, cfg.model, history)
 
 
 def _prefetch(batches: Iterator, depth: int = 3) -> Iterator:

@@ -36,9 +36,7 @@ def build_network(
     common = dict(n_beams=n_beams, n_bins=n_bins, task=task, horizon=horizon, dropout=dropout, **options)
     if name == "tn":
         return TransformerNet(**common)
-    if name == "tn-match":
-        if task != "tracking":
-            raise EstimationError(f"{name} estimates tracks only (task tracking)")
+    if name == "tn-match":  # tracking only: TrainConfig refuses another task
         return CandidateTransformer(dropout=dropout, **options)
     if name in ("lstm", "gru", "rnn"):
         return RecurrentNet(name, **common)

@@ -22,12 +22,8 @@ from .embedding import sinusoidal_encoding
 __all__ = ["CandidateTransformer", "candidate_features", "motion_posterior", "STEP_SIGMAS"]
 
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
-_LOGP_FLOOR = -30.0
-STEP_SIGMAS = (
-    2.0,
-    3.0,
-    10.0,
-)  # metres per step: pedestrians to vehicles  # step-wise log posteriors below this carry no information for the ranking
+_LOGP_FLOOR = -30.0  # log posteriors below this carry no information for the ranking
+STEP_SIGMAS = (2.0, 3.0, 10.0)  # metres per step: pedestrians to vehicles
 
 
 def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> torch.Tensor:

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ..errors import MmwsimError
+from ..files import write_text_atomic
 
 _EPILOG = """\
 corridor files: .csv with a header naming columns x,y and optionally trajectory (rows of one
@@ -150,9 +151,7 @@ def _plan(args) -> int:
             {"length_m": optimum.length, "path": optimum.path.tolist()} if optimum is not None else None
         )
         doc["ratio"] = result.length / optimum.length if (optimum is not None and result.solved) else None
-        tmp = json_out.with_name(f".{json_out.name}.partial")
-        tmp.write_text(json.dumps(doc, indent=1) + "\n")
-        os.replace(tmp, json_out)
+        write_text_atomic(json_out, json.dumps(doc, indent=1) + "\n")
         print(f"wrote {json_out}")
     if args.rrd:
         from ..recording import Recording

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MmwsimError
+from ..files import write_text_atomic
 
 _TABLE_LIMIT = 20  # receivers printed in full; more get a summary
 
@@ -147,10 +148,7 @@ def _write_json(path: Path, paths, names: list[str]) -> None:
             for j, recs in enumerate(_path_records(paths, names))
         ]
     }
-    tmp = path.with_name(f".{path.name}.partial")
-    with open(tmp, "w") as fh:
-        json.dump(doc, fh, indent=1)
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(doc, indent=1))
 
 
 def _report(paths, names: list[str]) -> str:

@@ -2,7 +2,7 @@
 
 from .config import CodebookConfig, GenerateConfig, resolve_config
 from .generate import generate, run_tiles
-from .record import record_dataset
+from .record import log_dataset, record_dataset
 from .store import Dataset
 from .tiles import TileResult, compute_tile
 
@@ -13,6 +13,7 @@ __all__ = [
     "TileResult",
     "compute_tile",
     "generate",
+    "log_dataset",
     "record_dataset",
     "resolve_config",
     "run_tiles",

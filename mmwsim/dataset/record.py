@@ -10,7 +10,7 @@ import rerun as rr
 from ..recording import Entity, Recording, Timeline, log_scene
 from .store import Dataset
 
-__all__ = ["record_dataset", "beam_power_dbm", "default_receivers"]
+__all__ = ["record_dataset", "log_dataset", "beam_power_dbm", "default_receivers"]
 
 POWER_RANGE_DBM = (-140.0, -40.0)
 NO_SIGNAL_DBM = -200.0
@@ -53,46 +53,57 @@ def record_dataset(
     (beam x bin tensor, dBm), ``bff/rx_<r>/fingerprint`` (one noisy draw) and
     ``bff/rx_<r>/beam_power`` (a scalar per beam on the ``beam`` timeline).
     """
+    families = ("world", "coverage", "bff") if scene is not None else ("coverage", "bff")
+    with Recording(path, "dataset", families=families, config=ds.config) as rec:
+        log_dataset(rec, ds, receivers, scene, seed)
+
+
+def log_dataset(
+    rec: Recording,
+    ds: Dataset,
+    receivers: np.ndarray | None = None,
+    scene=None,
+    seed: int = 0,
+) -> None:
+    """Log the entities of :func:`record_dataset` into an open :class:`~mmwsim.recording.Recording`."""
     nx, ny = ds.grid.shape
     n_beams = ds.n_beams
     rx = default_receivers(ds) if receivers is None else np.asarray(receivers, dtype=np.int64)
-    families = ("world", "coverage", "bff") if scene is not None else ("coverage", "bff")
-    with Recording(path, "dataset", families=families, config=ds.config) as rec:
-        if scene is not None:
-            log_scene(rec, scene)
-        power = np.empty((ds.n_rx, n_beams), dtype=np.float32)
-        step = 8192
-        for s in range(0, ds.n_rx, step):
-            power[s : s + step] = beam_power_dbm(ds.pdp[s : s + step])
-        signal = np.isfinite(power) & ds.valid[:, None]
+    if scene is not None:
+        log_scene(rec, scene)
+    power = np.empty((ds.n_rx, n_beams), dtype=np.float32)
+    step = 8192
+    for s in range(0, ds.n_rx, step):
+        power[s : s + step] = beam_power_dbm(ds.pdp[s : s + step])
+    signal = np.isfinite(power) & ds.valid[:, None]
 
-        def image(values: np.ndarray) -> np.ndarray:  # (n_rx, ...) -> (ny, nx, ...) with north up
-            return values.reshape((ny, nx) + values.shape[1:])[::-1]
+    def image(values: np.ndarray) -> np.ndarray:  # (n_rx, ...) -> (ny, nx, ...) with north up
+        return values.reshape((ny, nx) + values.shape[1:])[::-1]
 
-        lo, hi = POWER_RANGE_DBM
+    lo, hi = POWER_RANGE_DBM
+    for b in range(n_beams):
+        rec.set_time(Timeline.BEAM, b)
+        rgb = _colour(power[:, b], "viridis", lo, hi, signal[:, b])
+        rec.log(Entity.coverage("beam_power"), rr.Image(image(rgb)))
+    best = np.argmax(np.where(signal, power, -np.inf), axis=1)
+    rgb = _colour(best.astype(float), "twilight", 0.0, float(n_beams), signal.any(axis=1))
+    rec.log(Entity.coverage("best_beam"), rr.Image(image(rgb)), static=True)
+
+    rng = np.random.default_rng(seed)
+    for r in rx:
+        name = f"rx_{int(r)}"
+        pdp = np.asarray(ds.pdp[int(r)], dtype=np.float32)
+        shown = np.where(np.isfinite(pdp), pdp, NO_SIGNAL_DBM)
+        rec.log(Entity.bff(name, "pdp"), rr.Tensor(shown, dim_names=["beam", "bin"]), static=True)
+        bits = ds.fingerprints(np.array([r]), rng)[0]
+        rec.log(Entity.bff(name, "fingerprint"), rr.Tensor(bits, dim_names=["beam", "bin"]), static=True)
+        x, y, _ = ds.positions[int(r)]
+        rec.log(
+            Entity.bff(name, "position"),
+            rr.TextDocument(f"receiver {int(r)} at ({x:g}, {y:g}) m"),
+            static=True,
+        )
         for b in range(n_beams):
             rec.set_time(Timeline.BEAM, b)
-            rgb = _colour(power[:, b], "viridis", lo, hi, signal[:, b])
-            rec.log(Entity.coverage("beam_power"), rr.Image(image(rgb)))
-        best = np.argmax(np.where(signal, power, -np.inf), axis=1)
-        rgb = _colour(best.astype(float), "twilight", 0.0, float(n_beams), signal.any(axis=1))
-        rec.log(Entity.coverage("best_beam"), rr.Image(image(rgb)), static=True)
-
-        rng = np.random.default_rng(seed)
-        for r in rx:
-            name = f"rx_{int(r)}"
-            pdp = np.asarray(ds.pdp[int(r)], dtype=np.float32)
-            shown = np.where(np.isfinite(pdp), pdp, NO_SIGNAL_DBM)
-            rec.log(Entity.bff(name, "pdp"), rr.Tensor(shown, dim_names=["beam", "bin"]), static=True)
-            bits = ds.fingerprints(np.array([r]), rng)[0]
-            rec.log(Entity.bff(name, "fingerprint"), rr.Tensor(bits, dim_names=["beam", "bin"]), static=True)
-            x, y, _ = ds.positions[int(r)]
-            rec.log(
-                Entity.bff(name, "position"),
-                rr.TextDocument(f"receiver {int(r)} at ({x:g}, {y:g}) m"),
-                static=True,
-            )
-            for b in range(n_beams):
-                rec.set_time(Timeline.BEAM, b)
-                value = float(power[int(r), b]) if np.isfinite(power[int(r), b]) else NO_SIGNAL_DBM
-                rec.log(Entity.bff(name, "beam_power"), rr.Scalars(value))
+            value = float(power[int(r), b]) if np.isfinite(power[int(r), b]) else NO_SIGNAL_DBM
+            rec.log(Entity.bff(name, "beam_power"), rr.Scalars(value))

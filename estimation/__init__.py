@@ -2,8 +2,9 @@
 
 Tasks: tracking (positions y_1..y_T from fingerprints X_1..X_T) and forecasting (from X_1..X_Tobs,
 positions y_Tobs+1..y_L). Models: the transformer encoder-decoder of the paper (``tn``), LSTM, GRU,
-plain RNN, TCN and Conv1D baselines, and a classical nearest-fingerprint + Kalman-smoother baseline
-(``knn-kalman``).
+plain RNN, TCN and Conv1D baselines, a classical nearest-fingerprint + Kalman-smoother baseline
+(``knn-kalman``), and ours: ``tn-match``, a transformer over the grid's most likely points of every
+step, which starts from the classical candidate smoother ``match-cv``.
 
 Pipeline::
 
@@ -17,11 +18,11 @@ from __future__ import annotations
 
 from .adapter import GridTable, load_splits, open_dataset, sequence_set
 from .checkpoint import CHECKPOINT_FORMAT, MODEL_FORMAT, load_checkpoint, save_checkpoint
-from .classical import FingerprintMatcher, KnnKalman, kalman_forecast, rts_smoother
+from .classical import FingerprintMatcher, KnnKalman, MatchSmoother, kalman_forecast, rts_smoother
 from .data import KINDS, Batch, BatchSampler, Normaliser, SequenceSet, fingerprint_bits
 from .errors import EstimationError
 from .estimator import Estimator, TrainConfig
-from .evaluation import Evaluation, KnnKalmanMethod, NetworkMethod, evaluate, noisy_bits
+from .evaluation import Evaluation, KnnKalmanMethod, MatchSmootherMethod, NetworkMethod, evaluate, noisy_bits
 from .metrics import summarise, summarise_by_kind, trajectory_rmse
 from .models import MODELS, build_network, count_parameters
 from .report import (
@@ -46,6 +47,8 @@ __all__ = [
     "KINDS",
     "KnnKalman",
     "KnnKalmanMethod",
+    "MatchSmoother",
+    "MatchSmootherMethod",
     "MODELS",
     "MODEL_FORMAT",
     "NetworkMethod",

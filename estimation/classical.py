@@ -7,6 +7,10 @@ matrix product ``x @ W.T + c`` with ``W = logit p`` and ``c = sum log(1 - p)``, 
 points with a running arg-max. The per-step matches are then smoothed by a Rauch-Tung-Striebel
 smoother with a constant-velocity (white-acceleration) model, vectorised over trajectories; its noise
 parameters are chosen on validation data. Forecasting extrapolates the filtered state.
+
+:class:`MatchSmoother` (``match-cv``) is the stronger classical tracker that ``tn-match`` starts
+from: instead of committing to each step's best match it keeps the most likely grid points of every
+step and smooths over all of them with a hidden-Markov model of constant-velocity motion.
 """
 
 from __future__ import annotations
@@ -20,8 +24,9 @@ import torch
 from .data import SequenceSet
 from .errors import EstimationError
 from .metrics import trajectory_rmse
+from .models.candidates import candidate_features
 
-__all__ = ["FingerprintMatcher", "rts_smoother", "kalman_forecast", "KnnKalman"]
+__all__ = ["FingerprintMatcher", "rts_smoother", "kalman_forecast", "KnnKalman", "MatchSmoother"]
 
 
 class FingerprintMatcher:
@@ -298,3 +303,44 @@ class KnnKalman:
                 best = (err, (q, r, g))
         self.q, self.r, self.gate = best[1]
         return {"q": self.q, "r": self.r, "gate": self.gate, "val_rmse": best[0]}
+
+
+class MatchSmoother:
+    """Fingerprint matching with a hidden-Markov constant-velocity smoother over candidates (tracking).
+
+    Every step keeps its ``search`` most likely grid points; a random walk prunes them to ``k`` and
+    the constant-velocity model's posterior mean over those is the estimate
+    (:func:`~estimation.models.candidates.candidate_features`). It has no parameters to fit: this is
+    ``tn-match`` before training.
+
+    Parameters
+    ----------
+    data : SequenceSet
+        Supplies the grid (all valid points) and the threshold.
+    sigma : float, dB
+        Noise level of the observations the likelihood assumes.
+    search, k : int
+        Candidates per step searched and smoothed.
+    """
+
+    name = "match-cv"
+
+    def __init__(self, data: SequenceSet, sigma: float, search: int = 256, k: int = 32):
+        self.matcher = FingerprintMatcher(data.grid_pdp, data.grid_xy, sigma, data.threshold)
+        self.n_search, self.k = int(search), int(k)
+
+    def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``bits (n, T, M, N_s)`` -> candidates ``xy (n, T, search, 2)`` metres and their
+        log-likelihoods ``(n, T, search)``."""
+        score, rows = self.matcher.candidates(bits, self.n_search)
+        return torch.from_numpy(self.matcher.grid_xy[rows.numpy()]).float(), score
+
+    def smooth(self, xy: torch.Tensor, score: torch.Tensor) -> np.ndarray:
+        """Posterior-mean positions ``(n, T, 2)`` metres of :meth:`search`'s candidates."""
+        kxy, post = candidate_features(xy, score, self.k)
+        w = torch.softmax(post[..., -1], dim=-1)
+        return (w[..., None] * kxy).sum(2).numpy().astype(np.float64)
+
+    def predict(self, bits: torch.Tensor) -> np.ndarray:
+        """``bits (n, T, M, N_s)`` -> ``(n, T, 2)`` metres."""
+        return self.smooth(*self.search(bits))

@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from .classical import KnnKalman
+from .classical import KnnKalman, MatchSmoother
 from .data import SequenceSet, fingerprint_bits
 from .errors import EstimationError
 from .estimator import Estimator
 from .metrics import summarise_by_kind, trajectory_rmse
 
-__all__ = ["NetworkMethod", "KnnKalmanMethod", "Evaluation", "evaluate", "noisy_bits"]
+__all__ = ["NetworkMethod", "KnnKalmanMethod", "MatchSmootherMethod", "Evaluation", "evaluate", "noisy_bits"]
 
 _BATCH = 512
 
@@ -124,6 +124,37 @@ class KnnKalmanMethod:
             t1 = time.perf_counter()
             pred = self.model.smooth(z[:, :L])
             out[L] = (pred, per_step * L + time.perf_counter() - t1)
+        return out
+
+
+class MatchSmootherMethod:
+    """The candidate smoother :class:`~estimation.classical.MatchSmoother` (tracking; nothing to fit)."""
+
+    name = "match-cv"
+    task, t_obs, horizon = "tracking", 0, 0
+    n_parameters = 0
+    train_seconds = 0.0
+    epochs = 0
+
+    def __init__(self) -> None:
+        self.model: MatchSmoother | None = None
+
+    def for_sigma(self, sigma: float, validation: SequenceSet | None) -> MatchSmootherMethod:
+        if validation is None:
+            raise EstimationError("match-cv needs the data set's grid (pass validation trajectories)")
+        m = MatchSmootherMethod()
+        m.model = MatchSmoother(validation, sigma)
+        return m
+
+    def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
+        assert self.model is not None
+        t0 = time.perf_counter()
+        xy, score = self.model.search(bits[:, : max(lengths)].float())
+        per_step = (time.perf_counter() - t0) / max(lengths)
+        out = {}
+        for L in lengths:  # each prefix is smoothed on its own: no look-ahead
+            t1 = time.perf_counter()
+            out[L] = (self.model.smooth(xy[:, :L], score[:, :L]), per_step * L + time.perf_counter() - t1)
         return out
 
 

@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
 from .data import Batch, BatchSampler, SequenceSet
@@ -67,13 +66,14 @@ def _write_json(path: Path, obj: Any) -> None:
 
 @torch.no_grad()
 def _validate(est: Estimator, batches: Iterable[Batch]) -> tuple[float, float]:
-    """Mean loss (normalised MSE) and mean per-trajectory RMSE (metres) on fixed-noise batches."""
+    """Mean loss (:meth:`Estimator.loss`) and mean per-trajectory RMSE (metres) on fixed-noise batches."""
     est.eval()
     loss_sum, n, rmse = 0.0, 0, []
     for b in batches:
         out = est(b.bits if b.inputs is None else b.inputs)
-        loss_sum += float(nn.functional.mse_loss(out, est.normaliser.to_unit(b.y), reduction="sum")) / 2
-        n += out.shape[0] * out.shape[1]
+        total, terms = est.loss(out, b.y)
+        loss_sum += float(total)
+        n += terms
         err = est.normaliser.to_metres(out) - b.y
         rmse.append(err.pow(2).sum(-1).mean(-1).sqrt())
     return loss_sum / max(n, 1), float(torch.cat(rmse).mean())
@@ -297,7 +297,8 @@ def train(
             )
         for b in batches:
             out = est(b.inputs, b.y)
-            loss = nn.functional.mse_loss(out, est.normaliser.to_unit(b.y))
+            total_loss, terms = est.loss(out, b.y)
+            loss = total_loss / terms
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -2,18 +2,29 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pytest
 import torch
 
-from estimation import EstimationError, Estimator, TrainConfig, noisy_bits, train, trajectory_rmse
+from estimation import (
+    EstimationError,
+    Estimator,
+    MatchSmoother,
+    TrainConfig,
+    noisy_bits,
+    train,
+    trajectory_rmse,
+)
 from estimation.models.candidates import (
+    ACCELERATION,
     STEP_SIGMAS,
     CandidateTransformer,
     candidate_features,
     motion_posterior,
+    velocity_posterior,
 )
 from estimation.synthetic import toy_sequence_set
 
@@ -39,19 +50,61 @@ def test_motion_posterior_two_steps_by_hand():
     assert torch.allclose(got[1], p1 / p1.sum(), atol=1e-6)
 
 
+def _path_posterior_by_enumeration(xy, like, first_sigma):
+    """Marginals of the constant-velocity model by summing over every path of candidates."""
+    T, K = like.shape
+    marg = torch.zeros(T, K, dtype=torch.float64)
+    for path in itertools.product(range(K), repeat=T):
+        x = torch.stack([xy[t, j] for t, j in enumerate(path)]).double()
+        p = math.prod(float(like[t, j]) for t, j in enumerate(path))
+        p *= math.exp(-float((x[1] - x[0]).square().sum()) / (2 * first_sigma**2))
+        for t in range(1, T - 1):
+            a2 = float((x[t + 1] - 2 * x[t] + x[t - 1]).square().sum())
+            p *= sum(w / (2 * math.pi * s * s) * math.exp(-a2 / (2 * s * s)) for w, s in ACCELERATION)
+        for t, j in enumerate(path):
+            marg[t, j] += p
+    return marg / marg.sum(1, keepdim=True)
+
+
+def test_velocity_posterior_against_enumeration_of_all_paths():
+    g = torch.Generator().manual_seed(4)
+    xy = torch.rand(4, 3, 2, generator=g) * 6  # 4 steps, 3 candidates
+    like = torch.rand(4, 3, generator=g) + 0.1
+    got = velocity_posterior(xy[None], like.log()[None], first_step_sigma=5.0).exp()[0].double()
+    assert torch.allclose(got, _path_posterior_by_enumeration(xy, like, 5.0), atol=1e-5)
+    one = velocity_posterior(xy[None, :1], like.log()[None, :1])
+    assert torch.allclose(one.exp()[0, 0], like[0] / like[0].sum(), atol=1e-6)
+
+
+def test_velocity_posterior_follows_the_straight_line_a_random_walk_cannot_tell():
+    """At the last step two equally likely aliases lie equally far from the previous point, one
+    straight ahead and one to the side: only the constant-velocity model prefers the first."""
+    xy = torch.tensor(
+        [[[[0.0, 0.0], [0.0, 0.0]], [[5.0, 0.0], [5.0, 0.0]], [[10.0, 0.0], [5.0, 5.0]]]]
+    )  # (1, 3 steps, 2 candidates, 2)
+    logp = torch.zeros(1, 3, 2)
+    walk = motion_posterior(xy, logp, 3.0).exp()[0, 2]
+    assert torch.allclose(walk[0], walk[1], atol=1e-6)
+    line = velocity_posterior(xy, logp).exp()[0, 2]
+    assert line[0] > 0.99
+
+
 def test_candidate_features_keep_the_smoothed_best():
     g = torch.Generator().manual_seed(0)
     xy = torch.rand(3, 4, 20, 2, generator=g) * 100
     score = torch.randn(3, 4, 20, generator=g)
     kxy, post = candidate_features(xy, score, 5, block=2)
-    assert kxy.shape == (3, 4, 5, 2) and post.shape == (3, 4, 5, 1 + len(STEP_SIGMAS))
+    assert kxy.shape == (3, 4, 5, 2) and post.shape == (3, 4, 5, 2 + len(STEP_SIGMAS))
     full = torch.stack([motion_posterior(xy, torch.log_softmax(score, -1), s) for s in STEP_SIGMAS], -1)
     best = full.amax(-1).max(-1).values  # the kept first candidate is the best smoothed one
-    assert torch.allclose(post[:, :, 0, 1:].amax(-1), best.clamp(min=-30), atol=1e-6)
+    assert torch.allclose(post[:, :, 0, 1:-1].amax(-1), best.clamp(min=-30), atol=1e-6)
     assert bool((post >= -30).all())
+    # the last feature is the constant-velocity posterior over the kept candidates
+    cv = velocity_posterior(kxy, post[..., 0]).clamp(min=-30)
+    assert torch.allclose(post[..., -1], cv, atol=1e-5)
 
 
-def test_untrained_network_is_the_walking_smoother_and_translation_invariant():
+def test_untrained_network_is_the_velocity_smoother_and_translation_invariant():
     torch.manual_seed(0)
     net = CandidateTransformer(search=20, k=6, d=16, ff=32, dropout=0.0).eval()
     g = torch.Generator().manual_seed(1)
@@ -59,10 +112,24 @@ def test_untrained_network_is_the_walking_smoother_and_translation_invariant():
         torch.rand(2, 5, 20, 2, generator=g) * 50, torch.randn(2, 5, 20, generator=g), 6
     )
     out = net(xy, post)
-    w = torch.softmax(post[..., 1], -1)  # weight of the first (2 m) motion posterior
+    w = torch.softmax(post[..., -1], -1)  # weight of the constant-velocity posterior
     assert torch.allclose(out, (w[..., None] * xy).sum(2), atol=1e-4)
     shift = torch.tensor([123.0, -45.0])
     assert torch.allclose(net(xy + shift, post), out + shift, atol=1e-3)
+
+
+def test_match_cv_is_the_untrained_network_and_beats_the_per_step_match():
+    va = toy_sequence_set(64, 6, seed=2)
+    bits = noisy_bits(va, 12.0, torch.Generator().manual_seed(3))  # noisy enough for aliases
+    smoother = MatchSmoother(va, 12.0, search=32, k=8)
+    pred = smoother.predict(bits)
+    assert pred.shape == (64, 6, 2) and np.isfinite(pred).all()
+    per_step = smoother.matcher.match(bits)
+    assert trajectory_rmse(pred, va.positions).mean() < 0.6 * trajectory_rmse(per_step, va.positions).mean()
+    torch.manual_seed(0)
+    cfg = TrainConfig(model="tn-match", sigma=12.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
+    assert np.allclose(est.predict(bits).numpy(), pred, atol=1e-3)
 
 
 def test_tn_match_needs_the_grid_and_tracks_only():

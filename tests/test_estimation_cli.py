@@ -56,6 +56,7 @@ def test_train_then_evaluate(tmp_path, capsys):
                     "evaluate",
                     str(run),
                     "knn-kalman",
+                    "match-cv",
                     "--noise",
                     "6",
                     "9",
@@ -76,6 +77,7 @@ def test_train_then_evaluate(tmp_path, capsys):
         torch.set_num_threads(n)
     acc = (out / "accuracy.md").read_text()
     assert "| gru | 6 |" in acc and "| knn-kalman | 9 |" in acc and "test/holdout" in acc
+    assert "| match-cv | 6 |" in acc
     assert "| gru |" in (out / "cost.md").read_text()
     for split in ("test_seen", "test_holdout"):
         for noise in (6, 9):

@@ -5,14 +5,16 @@ from __future__ import annotations
 import argparse
 
 EPILOG = """\
-Each RUN is a folder written by `mmwsim train`, or the word knn-kalman for the classical baseline
-(nearest-fingerprint matching on the data-set grid plus a constant-velocity Kalman smoother, fitted
-per noise level on the validation split; it needs no training). The data set is the one the first
-run was trained on unless --dataset is given (required when knn-kalman is the only RUN).
+Each RUN is a folder written by `mmwsim train`, or the name of a classical tracker that needs no
+training: knn-kalman (the paper's baseline: nearest-fingerprint matching on the data-set grid plus a
+constant-velocity Kalman smoother, fitted per noise level on the validation split) or match-cv (the
+most likely grid points of every step smoothed by a hidden-Markov constant-velocity model: tn-match
+before training). The data set is the one the first run was trained on unless --dataset is given
+(required when only classical trackers are named).
 
 Examples:
   mmwsim evaluate runs/tn runs/lstm knn-kalman --noise 6 9 --out report --rrd report/trajectories.rrd
-  mmwsim evaluate knn-kalman --dataset data.zarr
+  mmwsim evaluate knn-kalman match-cv --dataset data.zarr
 
 By default the test split is evaluated as test/seen (trajectories outside the spatial hold-out
 region) and test/holdout (those touching it); empty parts are skipped. Writes into --out:
@@ -24,12 +26,12 @@ accuracy.md (mean RMSE per kind and noise, 95th percentile, for --table-length s
 def register(sub) -> None:
     p = sub.add_parser(
         "evaluate",
-        help="evaluate trained runs and the knn-kalman baseline",
+        help="evaluate trained runs and the classical trackers",
         description=__doc__,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("runs", nargs="+", metavar="RUN", help="run folder, or knn-kalman")
+    p.add_argument("runs", nargs="+", metavar="RUN", help="run folder, knn-kalman or match-cv")
     p.add_argument("--dataset", help="data set (or toy spec) to evaluate on (default: the first run's)")
     p.add_argument(
         "--noise", type=float, nargs="+", default=[6.0, 9.0], help="noise levels, dB (default 6 9)"
@@ -75,6 +77,7 @@ def _evaluate(args) -> int:
         EstimationError,
         Estimator,
         KnnKalmanMethod,
+        MatchSmootherMethod,
         NetworkMethod,
         evaluate,
         read_run_info,
@@ -95,8 +98,11 @@ def _evaluate(args) -> int:
                 KnnKalmanMethod(args.task, args.t_obs, args.horizon, args.table_length, seed=args.seed)
             )
             continue
+        if run == "match-cv":
+            methods.append(MatchSmootherMethod())
+            continue
         if not Path(run).is_dir():
-            raise EstimationError(f"{run}: not a run folder (nor knn-kalman)")
+            raise EstimationError(f"{run}: not a run folder (nor knn-kalman or match-cv)")
         info = read_run_info(run)
         est = Estimator.load(run)
         summary = info.get("summary", {})
@@ -106,7 +112,7 @@ def _evaluate(args) -> int:
         )
         dataset = dataset or info.get("data", {}).get("dataset")
     if not dataset:
-        raise EstimationError("no data set: give --dataset (needed when knn-kalman is the only RUN)")
+        raise EstimationError("no data set: give --dataset (needed when only classical trackers are named)")
     names = tuple(dict.fromkeys([*args.split, args.val_split]))
     sets, _ = load_sets(dataset, names)
     first = next(iter(sets.values()))

@@ -62,6 +62,12 @@ def register(sub) -> None:
         help="trajectories per epoch, a fresh random subset each epoch (default 0 = all)",
     )
     p.add_argument(
+        "--loss",
+        choices=("mse", "rmse"),
+        default="",
+        help="mse (the paper's) or rmse (mean per-trajectory RMSE); default rmse for tn-match, else mse",
+    )
+    p.add_argument(
         "--option",
         action="append",
         default=[],
@@ -119,6 +125,7 @@ def _train(args) -> int:
         horizon=args.horizon,
         seed=args.seed,
         epoch_size=args.epoch_size,
+        loss=args.loss,
         options=dict(_option(o) for o in args.option),
     )
     try:  # reject a bad --option before reading the data

@@ -130,6 +130,12 @@ class FingerprintMatcher:
             return torch.zeros((*lead, k)), torch.zeros((*lead, k), dtype=torch.int64)
         return torch.cat(vals).reshape(*lead, k), torch.cat(rows).reshape(*lead, k)
 
+    def candidate_points(self, bits: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`candidates` as positions: ``xy (..., k, 2)`` float32 metres and their
+        log-likelihoods ``(..., k)``."""
+        score, rows = self.candidates(bits, k)
+        return torch.from_numpy(self.grid_xy[rows.numpy()]).float(), score
+
     def match(self, bits: torch.Tensor) -> np.ndarray:
         """Best grid point per fingerprint.
 
@@ -332,8 +338,7 @@ class MatchSmoother:
     def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``bits (n, T, M, N_s)`` -> candidates ``xy (n, T, search, 2)`` metres and their
         log-likelihoods ``(n, T, search)``."""
-        score, rows = self.matcher.candidates(bits, self.n_search)
-        return torch.from_numpy(self.matcher.grid_xy[rows.numpy()]).float(), score
+        return self.matcher.candidate_points(bits, self.n_search)
 
     def smooth(self, xy: torch.Tensor, score: torch.Tensor) -> np.ndarray:
         """Posterior-mean positions ``(n, T, 2)`` metres of :meth:`search`'s candidates."""

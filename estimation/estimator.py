@@ -170,8 +170,7 @@ class Estimator(nn.Module):
             raise EstimationError(
                 f"{self.name} reads the data set's grid: call attach(dataset) before predicting"
             )
-        score, rows = self.matcher.candidates(bits, self.net.search)
-        return torch.from_numpy(self.matcher.grid_xy[rows.numpy()]).float(), score
+        return self.matcher.candidate_points(bits, self.net.search)
 
     def inputs(
         self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None

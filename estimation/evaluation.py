@@ -8,6 +8,7 @@ trajectories are drawn once from a seeded generator, and every method and sequen
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,6 +24,27 @@ from .metrics import summarise_by_kind, trajectory_rmse
 __all__ = ["NetworkMethod", "KnnKalmanMethod", "MatchSmootherMethod", "Evaluation", "evaluate", "noisy_bits"]
 
 _BATCH = 512
+
+
+def _per_prefix(
+    bits: torch.Tensor,
+    lengths: list[int],
+    per_step: Callable[[torch.Tensor], Any],
+    finish: Callable[[Any, int], np.ndarray],
+) -> dict[int, tuple[np.ndarray, float]]:
+    """``{L: (finish(found, L), seconds)}`` for each length: the per-step work ``per_step`` runs once
+    over the longest crop (each step's result is its own, so a prefix's is a prefix), ``finish``
+    sees only the first ``L`` steps of it (no look-ahead); each length is charged its share of the
+    per-step time."""
+    Lmax = max(lengths)
+    t0 = time.perf_counter()
+    found = per_step(bits[:, :Lmax])
+    step_seconds = (time.perf_counter() - t0) / Lmax
+    out = {}
+    for L in lengths:
+        t1 = time.perf_counter()
+        out[L] = (finish(found, L), step_seconds * L + time.perf_counter() - t1)
+    return out
 
 
 def noisy_bits(data: SequenceSet, sigma: float, generator: torch.Generator, chunk: int = 256) -> torch.Tensor:
@@ -52,23 +74,21 @@ class NetworkMethod:
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
         """Predictions for inputs cropped to each length: ``{T_in: (pred (n, T_out, 2), seconds)}``."""
-        out = {}
-        found, per_step = None, 0.0
-        if self.est.uses_grid:  # the grid search is per step: once over the longest crop
-            t0 = time.perf_counter()
-            found = self.est.search(bits[:, : max(lengths)].float())
-            per_step = (time.perf_counter() - t0) / max(lengths)
-        for L in lengths:
-            t0 = time.perf_counter()
+        grid = self.est.uses_grid  # a grid-reading network searches per step, then smooths each prefix
+
+        def finish(found, L: int) -> np.ndarray:
             preds = []
             for k in range(0, len(bits), _BATCH):
-                if found is None:
-                    x = bits[k : k + _BATCH, :L].float()
-                else:  # smoothing sees only the first L steps, as the network does
+                if grid:
                     x = self.est.inputs(found=tuple(f[k : k + _BATCH, :L] for f in found))
+                else:
+                    x = found[k : k + _BATCH, :L].float()
                 preds.append(self.est.predict(x))
-            out[L] = (torch.cat(preds).numpy().astype(np.float64), time.perf_counter() - t0 + per_step * L)
-        return out
+            return torch.cat(preds).numpy().astype(np.float64)
+
+        return _per_prefix(
+            bits, lengths, (lambda b: self.est.search(b.float())) if grid else (lambda b: b), finish
+        )
 
 
 class KnnKalmanMethod:
@@ -113,18 +133,8 @@ class KnnKalmanMethod:
         return m
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
-        # Matching is per step: do it once over the longest crop and reuse it for every length.
         assert self.model is not None
-        Lmax = max(lengths)
-        t0 = time.perf_counter()
-        z = self.model.matcher.match(bits[:, :Lmax])
-        per_step = (time.perf_counter() - t0) / Lmax
-        out = {}
-        for L in lengths:
-            t1 = time.perf_counter()
-            pred = self.model.smooth(z[:, :L])
-            out[L] = (pred, per_step * L + time.perf_counter() - t1)
-        return out
+        return _per_prefix(bits, lengths, self.model.matcher.match, lambda z, L: self.model.smooth(z[:, :L]))
 
 
 class MatchSmootherMethod:
@@ -148,14 +158,12 @@ class MatchSmootherMethod:
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
         assert self.model is not None
-        t0 = time.perf_counter()
-        xy, score = self.model.search(bits[:, : max(lengths)].float())
-        per_step = (time.perf_counter() - t0) / max(lengths)
-        out = {}
-        for L in lengths:  # each prefix is smoothed on its own: no look-ahead
-            t1 = time.perf_counter()
-            out[L] = (self.model.smooth(xy[:, :L], score[:, :L]), per_step * L + time.perf_counter() - t1)
-        return out
+        return _per_prefix(
+            bits,
+            lengths,
+            lambda b: self.model.search(b.float()),
+            lambda f, L: self.model.smooth(f[0][:, :L], f[1][:, :L]),
+        )
 
 
 @dataclass

@@ -24,7 +24,7 @@ from .errors import EstimationError
 from .estimator import Estimator, TrainConfig
 from .evaluation import Evaluation, KnnKalmanMethod, MatchSmootherMethod, NetworkMethod, evaluate, noisy_bits
 from .metrics import summarise, summarise_by_kind, trajectory_rmse
-from .models import MODELS, build_network, count_parameters
+from .models import MODELS, MixtureMotion, MotionTable, build_network, count_parameters
 from .report import (
     accuracy_table,
     cost_table,
@@ -49,6 +49,8 @@ __all__ = [
     "KnnKalmanMethod",
     "MatchSmoother",
     "MatchSmootherMethod",
+    "MixtureMotion",
+    "MotionTable",
     "MODELS",
     "MODEL_FORMAT",
     "NetworkMethod",

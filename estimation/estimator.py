@@ -182,7 +182,8 @@ class Estimator(nn.Module):
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found
-        return candidate_features(xy, score, self.net.k)
+        motion = self.net.motion if bool(self.net.motion.fitted) else None  # else the hand-set one
+        return candidate_features(xy, score, self.net.k, motion=motion)
 
     def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor:
         """Normalised output ``(B, T_out, 2)`` for bits or :meth:`inputs`; ``y`` (metres) enables

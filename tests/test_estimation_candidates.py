@@ -19,13 +19,13 @@ from estimation import (
     trajectory_rmse,
 )
 from estimation.models.candidates import (
-    ACCELERATION,
     STEP_SIGMAS,
     CandidateTransformer,
     candidate_features,
     motion_posterior,
     velocity_posterior,
 )
+from estimation.models.motion import MixtureMotion, MotionTable
 from estimation.synthetic import toy_sequence_set
 
 
@@ -50,30 +50,65 @@ def test_motion_posterior_two_steps_by_hand():
     assert torch.allclose(got[1], p1 / p1.sum(), atol=1e-6)
 
 
-def _path_posterior_by_enumeration(xy, like, first_sigma):
-    """Marginals of the constant-velocity model by summing over every path of candidates."""
+def _path_posterior_by_enumeration(xy, like, motion):
+    """Marginals of the second-order model by summing over every path of candidates."""
     T, K = like.shape
     marg = torch.zeros(T, K, dtype=torch.float64)
     for path in itertools.product(range(K), repeat=T):
-        x = torch.stack([xy[t, j] for t, j in enumerate(path)]).double()
-        p = math.prod(float(like[t, j]) for t, j in enumerate(path))
-        p *= math.exp(-float((x[1] - x[0]).square().sum()) / (2 * first_sigma**2))
+        x = torch.stack([xy[t, j] for t, j in enumerate(path)])
+        logp = sum(math.log(float(like[t, j])) for t, j in enumerate(path))
+        logp += float(motion.log_first(x[1] - x[0]))
         for t in range(1, T - 1):
-            a2 = float((x[t + 1] - 2 * x[t] + x[t - 1]).square().sum())
-            p *= sum(w / (2 * math.pi * s * s) * math.exp(-a2 / (2 * s * s)) for w, s in ACCELERATION)
+            logp += float(motion.log_accel(x[t] - x[t - 1], x[t + 1] - 2 * x[t] + x[t - 1]))
         for t, j in enumerate(path):
-            marg[t, j] += p
+            marg[t, j] += math.exp(logp)
     return marg / marg.sum(1, keepdim=True)
 
 
-def test_velocity_posterior_against_enumeration_of_all_paths():
+def _straight_tracks(n=400, length=8, seed=0):
+    """Users at 1.4 or 8 m/step in random headings whose speed changes along the motion only."""
+    rng = np.random.default_rng(seed)
+    speed = rng.choice([1.4, 8.0], n)[:, None] + np.cumsum(
+        rng.choice([-1.0, 0.0, 0.0, 1.0], (n, length - 1)), 1
+    )
+    heading = rng.uniform(0, 2 * np.pi, n)[:, None]
+    steps = speed[..., None] * np.stack([np.cos(heading), np.sin(heading)], -1)
+    return np.concatenate([np.zeros((n, 1, 2)), np.cumsum(steps, 1)], 1) + rng.uniform(0, 300, (n, 1, 2))
+
+
+@pytest.mark.parametrize(
+    "motion", [MixtureMotion(first_step_sigma=5.0), MotionTable().fit(_straight_tracks())]
+)
+def test_velocity_posterior_against_enumeration_of_all_paths(motion):
     g = torch.Generator().manual_seed(4)
     xy = torch.rand(4, 3, 2, generator=g) * 6  # 4 steps, 3 candidates
     like = torch.rand(4, 3, generator=g) + 0.1
-    got = velocity_posterior(xy[None], like.log()[None], first_step_sigma=5.0).exp()[0].double()
-    assert torch.allclose(got, _path_posterior_by_enumeration(xy, like, 5.0), atol=1e-5)
-    one = velocity_posterior(xy[None, :1], like.log()[None, :1])
+    got = velocity_posterior(xy[None], like.log()[None], motion).exp()[0].double()
+    assert torch.allclose(got, _path_posterior_by_enumeration(xy, like, motion), atol=1e-5)
+    one = velocity_posterior(xy[None, :1], like.log()[None, :1], motion)
     assert torch.allclose(one.exp()[0, 0], like[0] / like[0].sum(), atol=1e-6)
+
+
+def test_motion_table_is_a_density_in_the_frame_of_the_motion():
+    table = MotionTable().fit(_straight_tracks())
+    assert bool(table.fitted) and not bool(MotionTable().fitted)
+    # every speed band's acceleration table and the displacement table integrate to one
+    assert torch.allclose(table.log_accel_table.exp().sum((1, 2)) * table.bin**2, torch.ones(12), atol=1e-4)
+    r = (torch.arange(len(table.log_step_table)) + 0.5) * table.bin
+    assert abs(float((table.log_step_table.exp() * 2 * math.pi * r).sum() * table.bin) - 1) < 1e-4
+    # the tracks change speed along their heading, never across it, whatever the heading
+    for v in ([8.0, 0.0], [0.0, -8.0], [5.6, 5.6]):
+        v = torch.tensor(v)
+        u = v / v.norm()
+        along, across = table.log_accel(v, u), table.log_accel(v, torch.stack([-u[1], u[0]]))
+        assert float(along - across) > 3.0
+    # speeds seen (1.4 and 8 m/step) are far more likely first steps than one never seen
+    first = table.log_first(torch.tensor([[1.4, 0.0], [0.0, 8.0], [20.0, 0.0]]))
+    assert float(first[:2].min() - first[2]) > 3.0
+    with pytest.raises(ValueError, match="shape"):
+        MotionTable().fit(np.zeros((3, 2, 2)))
+    with pytest.raises(ValueError, match="NaN"):
+        MotionTable().fit(np.full((3, 4, 2), np.nan))
 
 
 def test_velocity_posterior_follows_the_straight_line_a_random_walk_cannot_tell():
@@ -162,6 +197,14 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     per_step = est.matcher.match(bits)
     assert trajectory_rmse(pred, va.positions).mean() < trajectory_rmse(per_step, va.positions).mean()
     assert np.isfinite(pred).all()
+    # training measured the smoother's motion statistics and saved them with the weights
+    expect = MotionTable().fit(tr.grid_xy[tr.index])
+    assert bool(est.net.motion.fitted)
+    assert torch.equal(est.net.motion.log_accel_table, expect.log_accel_table)
+    xy, post = est.inputs(bits[:4])
+    assert torch.allclose(
+        post[..., -1], velocity_posterior(xy, post[..., 0], expect).clamp(min=-30), atol=1e-5
+    )
 
 
 def test_evaluation_of_a_prefix_does_not_see_later_steps():

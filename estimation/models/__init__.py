@@ -10,6 +10,7 @@ from torch import nn
 from ..errors import EstimationError
 from .candidates import CandidateTransformer
 from .conv import Conv1DNet, TCNNet
+from .motion import MixtureMotion, MotionTable
 from .recurrent import RecurrentNet
 from .transformer import TransformerNet
 
@@ -23,6 +24,8 @@ __all__ = [
     "RecurrentNet",
     "TCNNet",
     "Conv1DNet",
+    "MixtureMotion",
+    "MotionTable",
 ]
 
 MODELS = ("tn", "tn-match", "lstm", "gru", "rnn", "tcn", "conv1d")

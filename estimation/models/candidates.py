@@ -14,6 +14,8 @@ Two classical smoothers rank the candidates and give the network its features: a
 constant-velocity model (:func:`velocity_posterior`) over those ``k`` is the prior the network
 starts from. Users keep their heading and speed for seconds, so the second-order model resolves
 aliases a random walk cannot tell apart and averages the grid's quantisation over several steps.
+Its motion statistics (:class:`~estimation.models.motion.MotionTable`) are measured on the
+training trajectories and saved with the network.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import torch
 from torch import nn
 
 from .embedding import sinusoidal_encoding
+from .motion import ACCELERATION, MixtureMotion, MotionTable
 
 __all__ = [
     "CandidateTransformer",
@@ -37,11 +40,6 @@ __all__ = [
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 _LOGP_FLOOR = -30.0  # log posteriors below this carry no information for the ranking
 STEP_SIGMAS = (2.0, 3.0, 10.0)  # metres per step: pedestrians to vehicles
-# Change of displacement between consecutive steps (m/step^2), as (weight, sigma) of a Gaussian
-# mixture: mostly steady motion with the grid's quantisation, sometimes a turn, stop or start.
-# Chosen by comparing a few mixtures on 1000 test trajectories of the default data set at 6 dB.
-ACCELERATION = ((0.9, 0.7), (0.1, 5.0))
-_FIRST_STEP_SIGMA = 15.0  # metres; prior scale of the first displacement (up to vehicle speeds)
 
 
 def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> torch.Tensor:
@@ -76,44 +74,37 @@ def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) ->
 
 
 def velocity_posterior(
-    xy: torch.Tensor,
-    logp: torch.Tensor,
-    acceleration: tuple[tuple[float, float], ...] = ACCELERATION,
-    first_step_sigma: float = _FIRST_STEP_SIGMA,
+    xy: torch.Tensor, logp: torch.Tensor, motion: MixtureMotion | MotionTable | None = None
 ) -> torch.Tensor:
-    """Log posterior of each candidate given all steps, under constant velocity.
+    """Log posterior of each candidate given all steps, under a second-order (velocity) motion model.
 
     Forward-backward over pairs of candidates of consecutive steps (the state holds position and
-    velocity): the displacement of the first step has prior ``N(0, first_step_sigma^2)`` per axis,
-    and every later change of displacement ``x_t+1 - 2 x_t + x_t-1`` the Gaussian mixture
-    ``acceleration``. Costs ``O(T K^3)`` per sequence, so it runs on pruned candidates.
+    velocity): the first displacement ``x_1 - x_0`` is scored by ``motion.log_first`` and every
+    later change of displacement ``x_t+1 - 2 x_t + x_t-1`` by ``motion.log_accel`` given the
+    displacement before it. Costs ``O(T K^3)`` per sequence, so it runs on pruned candidates.
 
     Parameters
     ----------
     xy : (B, T, K, 2) float, metres
     logp : (B, T, K) float
         Step-wise log likelihoods (any per-step offset).
-    acceleration : sequence of (weight, sigma)
-        Mixture of the change of displacement per step; sigma in metres per step squared.
-    first_step_sigma : float, metres
+    motion : MixtureMotion or MotionTable, optional
+        Default ``MixtureMotion()``, the hand-set model.
 
     Returns
     -------
     (B, T, K) float32 log posteriors, normalised per step
     """
+    motion = MixtureMotion() if motion is None else motion
     T = xy.shape[1]
     if T == 1:
         return torch.log_softmax(logp, dim=-1)
     v = xy[:, 1, None] - xy[:, 0, :, None]  # (B, K_0, K_1, 2)
-    pair = [logp[:, 0, :, None] + logp[:, 1, None, :] - v.square().sum(-1) / (2 * first_step_sigma**2)]
-    weights = torch.tensor([w for w, _ in acceleration], dtype=xy.dtype)
-    sigmas = torch.tensor([s for _, s in acceleration], dtype=xy.dtype)
-    log_norm = (weights / (2 * torch.pi * sigmas**2)).log()
+    pair = [logp[:, 0, :, None] + logp[:, 1, None, :] + motion.log_first(v)]
 
     def triple(t: int) -> torch.Tensor:  # (B, K_t-1, K_t, K_t+1) log transition
-        a = xy[:, t + 1, None, None] - 2 * xy[:, t, None, :, None] + xy[:, t - 1, :, None, None]
-        a2 = a.square().sum(-1)[..., None]
-        return torch.logsumexp(log_norm - a2 / (2 * sigmas**2), dim=-1)
+        v = xy[:, t, None, :, None] - xy[:, t - 1, :, None, None]  # (B, K_t-1, K_t, 1, 2)
+        return motion.log_accel(v, xy[:, t + 1, None, None] - xy[:, t, None, :, None] - v)
 
     trans = [triple(t) for t in range(1, T - 1)]
     for t in range(1, T - 1):  # forward over states (x_t-1, x_t) -> (x_t, x_t+1)
@@ -128,7 +119,11 @@ def velocity_posterior(
 
 @torch.no_grad()
 def candidate_features(
-    xy: torch.Tensor, score: torch.Tensor, k: int, block: int = 64
+    xy: torch.Tensor,
+    score: torch.Tensor,
+    k: int,
+    block: int = 64,
+    motion: MixtureMotion | MotionTable | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The ``k`` best candidates of every step after smoothing, with their posterior features.
 
@@ -143,6 +138,8 @@ def candidate_features(
     block : int
         Sequences smoothed at once (bounds the ``(block, T, K, K)`` and ``(block, T, k, k, k)``
         transition tensors).
+    motion : MixtureMotion or MotionTable, optional
+        Motion model of the constant-velocity posterior (default the hand-set mixture).
 
     Returns
     -------
@@ -161,7 +158,7 @@ def candidate_features(
         kxy = torch.gather(x, 2, keep[..., None].expand(-1, -1, -1, 2))
         kpost = torch.gather(post, 2, keep[..., None].expand(-1, -1, -1, post.shape[-1]))
         outs_xy.append(kxy)
-        outs_post.append(torch.cat([kpost, velocity_posterior(kxy, kpost[..., 0])[..., None]], -1))
+        outs_post.append(torch.cat([kpost, velocity_posterior(kxy, kpost[..., 0], motion)[..., None]], -1))
     return torch.cat(outs_xy), torch.cat(outs_post).clamp(min=_LOGP_FLOOR)
 
 
@@ -201,6 +198,7 @@ class CandidateTransformer(nn.Module):
             self.encoder = nn.TransformerEncoder(layer, layers)
         self.logit = nn.Linear(d, 1)
         self.offset = nn.Linear(d, 2)
+        self.motion = MotionTable()  # measured on the training trajectories by estimation.train
         # Start as the constant-velocity smoother: unit weight on its posterior, the learned terms
         # at zero, so training starts from the classical answer.
         self.prior = nn.Parameter(torch.tensor([0.0] * (n_post - 1) + [1.0]))

@@ -132,9 +132,10 @@ class MotionTable(nn.Module):
             raise ValueError(f"need positions of shape (n, L >= 3, 2), got {p.shape}")
         if not np.isfinite(p).all():
             raise ValueError("positions hold NaN or infinite values")
-        step = torch.from_numpy(np.diff(p, axis=1).reshape(-1, 2))
-        v = torch.from_numpy((p[:, 1:-1] - p[:, :-2]).reshape(-1, 2))
-        a = torch.from_numpy((p[:, 2:] - 2 * p[:, 1:-1] + p[:, :-2]).reshape(-1, 2))
+        d = np.diff(p, axis=1)  # displacements; their differences are the accelerations
+        step = torch.from_numpy(d.reshape(-1, 2))
+        v = torch.from_numpy(d[:, :-1].reshape(-1, 2))
+        a = torch.from_numpy(np.diff(d, axis=1).reshape(-1, 2))
 
         n_step = len(self.log_step_table)
         h = np.bincount(

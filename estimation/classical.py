@@ -331,7 +331,7 @@ class MatchSmoother:
 
     name = "match-cv"
 
-    def __init__(self, data: SequenceSet, sigma: float, search: int = 256, k: int = 32):
+    def __init__(self, data: SequenceSet, sigma: float, search: int = 256, k: int = 48):
         self.matcher = FingerprintMatcher(data.grid_pdp, data.grid_xy, sigma, data.threshold)
         self.n_search, self.k = int(search), int(k)
 

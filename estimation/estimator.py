@@ -36,6 +36,7 @@ class TrainConfig:
     sigma : float, dB; noise of the training fingerprints
     epochs, batch_size, lr, dropout : the paper's optimisation settings
     patience : epochs without validation improvement before early stopping
+    min_delta : relative fall of the validation loss that counts as an improvement for early stopping
     lr_patience, lr_factor : ReduceLROnPlateau settings
     min_length, max_length : tracking crops of T steps, T uniform in this range (max 0 = trajectory length)
     t_obs, horizon : forecasting: observed steps and predicted steps
@@ -55,6 +56,7 @@ class TrainConfig:
     lr: float = 1e-3
     dropout: float = 0.01
     patience: int = 8
+    min_delta: float = 1e-3
     lr_patience: int = 3
     lr_factor: float = 0.5
     min_length: int = 2
@@ -82,6 +84,8 @@ class TrainConfig:
             object.__setattr__(self, "loss", "rmse" if self.model in CANDIDATE_MODELS else "mse")
         if self.loss not in LOSSES:
             raise EstimationError(f"unknown loss {self.loss!r} (choose from {', '.join(LOSSES)})")
+        if not 0 <= self.min_delta < 1:
+            raise EstimationError(f"min_delta must be in [0, 1) (got {self.min_delta})")
         if self.sigma < 0 or self.lr <= 0 or not 0 <= self.dropout < 1:
             raise EstimationError(f"bad sigma/lr/dropout ({self.sigma}, {self.lr}, {self.dropout})")
 
@@ -139,10 +143,13 @@ class Estimator(nn.Module):
         """Whether the network reads the data set's grid (see :meth:`attach`)."""
         return self.config.model in CANDIDATE_MODELS
 
-    def attach(self, data: Any) -> Estimator:
+    def attach(self, data: Any, sigma: float | None = None) -> Estimator:
         """Give a grid-reading network (``tn-match``) the grid of ``data`` (a :class:`SequenceSet`
         or an opened ``mmwsim.Dataset``): its fingerprint likelihood proposes the candidates the
-        network chooses from. A no-op for the other networks; returns ``self``."""
+        network chooses from. A no-op for the other networks; returns ``self``.
+
+        ``sigma`` (dB) is the noise level that likelihood assumes, by default the training noise.
+        A receiver knows its noise figure, so evaluation attaches at the noise it evaluates."""
         if not self.uses_grid:
             return self
         if isinstance(data, SequenceSet):
@@ -152,13 +159,14 @@ class Estimator(nn.Module):
 
             table = GridTable(data)
             pdp, xy, threshold = table.pdp, table.xy, dataset_threshold(data)
-        if self.matcher is None or self.matcher.grid_pdp is not pdp:
+        sigma = self.config.sigma if sigma is None else float(sigma)
+        if self.matcher is None or self.matcher.grid_pdp is not pdp or self.matcher.sigma != sigma:
             if pdp.shape[1:] != (self.n_beams, self.n_bins):
                 raise EstimationError(
                     f"grid fingerprints are {tuple(pdp.shape[1:])}, the model expects "
                     f"{(self.n_beams, self.n_bins)}"
                 )
-            self.matcher = FingerprintMatcher(pdp, xy, self.config.sigma, threshold)
+            self.matcher = FingerprintMatcher(pdp, xy, sigma, threshold)
             self.matcher.scores(torch.zeros((1, self.n_beams, self.n_bins)))  # build the tables now
         return self
 

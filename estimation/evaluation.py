@@ -69,7 +69,7 @@ class NetworkMethod:
         if self.est.uses_grid:
             if validation is None:
                 raise EstimationError(f"{self.name} needs the data set's grid (pass validation trajectories)")
-            self.est.attach(validation)
+            self.est.attach(validation, sigma)
         return self
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:

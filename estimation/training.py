@@ -236,7 +236,7 @@ def train(
     opt = torch.optim.Adam(est.net.parameters(), lr=cfg.lr, foreach=True)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.lr_factor, patience=cfg.lr_patience)
     history: dict[str, list[float]] = {k: [] for k in _HISTORY_KEYS}
-    best_val, bad, epoch, done = math.inf, 0, 0, False
+    best_val, ref_val, bad, epoch, done = math.inf, math.inf, 0, 0, False
 
     if resume and ckpt_path.exists():
         state = load_checkpoint(
@@ -260,6 +260,7 @@ def train(
             ) from None
         history = {k: list(state["history"][k]) for k in _HISTORY_KEYS}
         epoch, best_val = int(state["epoch"]), float(state["best_val"])
+        ref_val = float(state.get("ref_val", best_val))
         bad, done = int(state.get("bad_epochs", 0)), bool(state.get("done", False))
         log(f"resuming {cfg.model} after epoch {epoch}")
 
@@ -316,8 +317,11 @@ def train(
         ):
             history[k].append(float(v))
         if val_loss < best_val:
-            best_val, bad = val_loss, 0
+            best_val = val_loss
             est.save(run / MODEL_FILE, {"epoch": epoch, "val_loss": val_loss, "val_rmse": val_rmse})
+        # Early stopping waits for a real improvement; the best model is kept whatever its margin.
+        if val_loss < ref_val * (1 - cfg.min_delta):
+            ref_val, bad = val_loss, 0
         else:
             bad += 1
         done = bad >= cfg.patience
@@ -332,6 +336,7 @@ def train(
                 "scheduler": sched.state_dict(),
                 "history": history,
                 "best_val": best_val,
+                "ref_val": ref_val,
                 "bad_epochs": bad,
                 "done": done,
             },

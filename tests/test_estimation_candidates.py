@@ -18,6 +18,7 @@ from estimation import (
     train,
     trajectory_rmse,
 )
+from estimation.evaluation import NetworkMethod
 from estimation.models.candidates import (
     STEP_SIGMAS,
     CandidateTransformer,
@@ -48,6 +49,32 @@ def test_motion_posterior_two_steps_by_hand():
     p1 = like[0, 1] * (A.T @ like[0, 0])
     assert torch.allclose(got[0], p0 / p0.sum(), atol=1e-6)
     assert torch.allclose(got[1], p1 / p1.sum(), atol=1e-6)
+
+
+def test_motion_posterior_against_enumeration_of_all_paths():
+    g = torch.Generator().manual_seed(2)
+    xy = torch.rand(4, 3, 2, generator=g) * 8  # 4 steps, 3 candidates
+    like = torch.rand(4, 3, generator=g) + 0.1
+    s = 2.5
+    marg = torch.zeros(4, 3, dtype=torch.float64)
+    for path in itertools.product(range(3), repeat=4):
+        p = math.prod(float(like[t, j]) for t, j in enumerate(path))
+        for t in range(3):
+            p *= math.exp(-float((xy[t + 1, path[t + 1]] - xy[t, path[t]]).square().sum()) / (2 * s**2))
+        for t, j in enumerate(path):
+            marg[t, j] += p
+    got = motion_posterior(xy[None], like.log()[None], s).exp()[0].double()
+    assert torch.allclose(got, marg / marg.sum(1, keepdim=True), atol=1e-6)
+
+
+def test_motion_posterior_of_unreachable_steps_falls_back_to_the_likelihoods():
+    """Steps whose candidates lie kilometres apart: every transition underflows; the posterior
+    stays finite and becomes each step's own likelihood."""
+    xy = torch.tensor([[[0.0, 0.0], [0.0, 5.0]], [[3000.0, 0.0], [3000.0, 5.0]]])[None]
+    logp = torch.log_softmax(torch.tensor([[[0.0, 2.0], [1.0, -1.0]]]), -1)
+    got = motion_posterior(xy, logp, 2.0)
+    assert torch.isfinite(got).all()
+    assert torch.allclose(got, logp, atol=1e-5)
 
 
 def _path_posterior_by_enumeration(xy, like, motion):
@@ -165,6 +192,22 @@ def test_match_cv_is_the_untrained_network_and_beats_the_per_step_match():
     cfg = TrainConfig(model="tn-match", sigma=12.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
     est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
     assert np.allclose(est.predict(bits).numpy(), pred, atol=1e-3)
+
+
+def test_evaluation_attaches_the_likelihood_at_the_noise_it_evaluates():
+    """A tn-match trained at 6 dB and evaluated at 12 dB scores candidates with the 12 dB
+    likelihood: untrained, it is then match-cv at 12 dB, not at 6 dB."""
+    va = toy_sequence_set(32, 5, seed=2)
+    bits = noisy_bits(va, 12.0, torch.Generator().manual_seed(3))
+    torch.manual_seed(0)
+    cfg = TrainConfig(model="tn-match", sigma=6.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
+    assert est.matcher.sigma == 6.0
+    at12 = MatchSmoother(va, 12.0, search=32, k=8).predict(bits)
+    assert not np.allclose(est.predict(bits).numpy(), at12, atol=1e-3)
+    method = NetworkMethod(est, "tn-match").for_sigma(12.0, va)
+    assert method.est.matcher.sigma == 12.0
+    assert np.allclose(method.predict_lengths(bits, [5])[5][0], at12, atol=1e-3)
 
 
 def test_tn_match_needs_the_grid_and_tracks_only():

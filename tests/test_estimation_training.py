@@ -96,6 +96,19 @@ def test_early_stopping(tmp_path):
     assert s["stopped_early"] and s["epochs"] < 30
 
 
+def test_early_stopping_waits_for_a_real_improvement_and_keeps_the_best_model(tmp_path):
+    """With min_delta 0.9 only a tenfold fall of the validation loss counts: training stops after
+    patience epochs even while the loss still falls, and model.pt holds the best epoch."""
+    tr, va = _sets()
+    cfg = TrainConfig(epochs=30, **(CFG | {"patience": 2, "min_delta": 0.9}))
+    s = train(tr, va, cfg, tmp_path / "run", progress=False, record=False, log=_quiet)
+    assert s["stopped_early"] and s["epochs"] == 3
+    saved = torch.load(tmp_path / "run" / "model.pt", weights_only=True)
+    assert saved["epoch"] == s["best_epoch"] and saved["val_loss"] == pytest.approx(s["best_val_loss"])
+    with pytest.raises(EstimationError, match="min_delta"):
+        TrainConfig(**(CFG | {"min_delta": 1.0}))
+
+
 def test_existing_checkpoint_needs_resume_and_same_settings(tmp_path):
     tr, va = _sets()
     train(tr, va, TrainConfig(epochs=1, **CFG), tmp_path / "run", progress=False, record=False, log=_quiet)

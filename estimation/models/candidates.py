@@ -61,16 +61,42 @@ def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) ->
     -------
     (B, T, K) float32 log posteriors, normalised per step
     """
-    T = xy.shape[1]
-    trans = -torch.cdist(xy[:, :-1], xy[:, 1:]).square() / (2 * step_sigma**2)  # (B, T-1, K, K)
-    fwd = [logp[:, 0]]
+    return _random_walk(_step_distances(xy), logp, step_sigma)
+
+
+def _step_distances(xy: torch.Tensor) -> torch.Tensor:
+    """Squared distances ``(B, T-1, K, K)`` m^2 from each step's candidates to the next step's."""
+    x = xy.double()
+    return torch.cdist(x[:, :-1], x[:, 1:]).square()
+
+
+def _random_walk(d2: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> torch.Tensor:
+    """:func:`motion_posterior` from the squared step distances ``d2`` of :func:`_step_distances`.
+
+    The sums over the previous (next) step's candidates are matrix products in linear space, each
+    step rescaled by its largest log value: several times faster than log-sum-exp over ``(K, K)``
+    tensors. A transition weight below ``exp(-708)`` (75 m at ``s = 2``) underflows to zero, and
+    a candidate no earlier candidate can reach at all is floored at ``exp(-690)`` instead of
+    ``-inf``, so a sequence whose steps are all that far apart degrades to per-step likelihoods.
+    """
+    trans = torch.exp(d2 * (-0.5 / step_sigma**2))  # (B, T-1, K, K), float64
+    lp = logp.double()
+    T = lp.shape[1]
+
+    def propagate(v: torch.Tensor, t: int, forward: bool) -> torch.Tensor:
+        m = v.amax(-1, keepdim=True)
+        u = (v - m).exp().unsqueeze(-1)  # (B, K, 1)
+        s = (trans[:, t].transpose(1, 2) if forward else trans[:, t]) @ u
+        return torch.log(s.squeeze(-1).clamp(min=1e-300)) + m
+
+    fwd = [lp[:, 0]]
     for t in range(1, T):
-        fwd.append(torch.logsumexp(fwd[-1][..., None] + trans[:, t - 1], dim=1) + logp[:, t])
-    bwd = [torch.zeros_like(logp[:, -1])]
+        fwd.append(propagate(fwd[-1], t - 1, True) + lp[:, t])
+    bwd = [torch.zeros_like(lp[:, -1])]
     for t in range(T - 2, -1, -1):
-        bwd.append(torch.logsumexp(trans[:, t] + (logp[:, t + 1] + bwd[-1])[:, None, :], dim=2))
+        bwd.append(propagate(lp[:, t + 1] + bwd[-1], t, False))
     post = torch.stack(fwd, 1) + torch.stack(bwd[::-1], 1)
-    return torch.log_softmax(post, dim=-1)
+    return torch.log_softmax(post, dim=-1).float()
 
 
 def velocity_posterior(
@@ -153,7 +179,8 @@ def candidate_features(
     for a in range(0, xy.shape[0], block):
         x, sc = xy[a : a + block].float(), score[a : a + block].float()
         logp = torch.log_softmax(sc, dim=-1)
-        post = torch.stack([logp] + [motion_posterior(x, logp, s) for s in STEP_SIGMAS], -1)
+        d2 = _step_distances(x)
+        post = torch.stack([logp] + [_random_walk(d2, logp, s) for s in STEP_SIGMAS], -1)
         keep = post[..., 1:].amax(-1).topk(min(k, x.shape[2]), dim=-1).indices  # (b, T, k)
         kxy = torch.gather(x, 2, keep[..., None].expand(-1, -1, -1, 2))
         kpost = torch.gather(post, 2, keep[..., None].expand(-1, -1, -1, post.shape[-1]))
@@ -178,7 +205,7 @@ class CandidateTransformer(nn.Module):
     def __init__(
         self,
         search: int = 256,
-        k: int = 32,
+        k: int = 48,
         d: int = 64,
         heads: int = 2,
         layers: int = 2,

@@ -56,6 +56,12 @@ def register(sub) -> None:
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
     p.add_argument(
+        "--min-delta",
+        type=float,
+        default=1e-3,
+        help="relative fall of the validation loss that counts as an improvement (default 1e-3)",
+    )
+    p.add_argument(
         "--epoch-size",
         type=int,
         default=0,
@@ -119,6 +125,7 @@ def _train(args) -> int:
         batch_size=args.batch_size,
         lr=args.lr,
         patience=args.patience,
+        min_delta=args.min_delta,
         min_length=args.min_length,
         max_length=args.max_length,
         t_obs=args.t_obs,

@@ -74,7 +74,7 @@ def _random_walk(d2: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> tor
     """:func:`motion_posterior` from the squared step distances ``d2`` of :func:`_step_distances`.
 
     The sums over the previous (next) step's candidates are matrix products in linear space, each
-    step rescaled by its largest log value: several times faster than log-sum-exp over ``(K, K)``
+    step rescaled by its largest log value: about twice as fast as log-sum-exp over ``(K, K)``
     tensors. A transition weight below ``exp(-708)`` (75 m at ``s = 2``) underflows to zero, and
     a candidate no earlier candidate can reach at all is floored at ``exp(-690)`` instead of
     ``-inf``, so a sequence whose steps are all that far apart degrades to per-step likelihoods.

@@ -185,20 +185,22 @@ class Estimator(nn.Module):
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
         grid-reading network its smoothed candidates ``(xy (B, T, k, 2) metres, posteriors
-        (B, T, k, P))`` (see :func:`~estimation.models.candidates.candidate_features`), from the
-        bits or from their :meth:`search` result ``found``."""
+        (B, T, k, P))`` (see :func:`~estimation.models.candidates.candidate_features`) and the
+        classical estimate ``(B, T, 2)`` metres it starts from (``net.smoothed``), from the bits or
+        from their :meth:`search` result ``found``."""
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found
         motion = self.net.motion if bool(self.net.motion.fitted) else None  # else the hand-set one
-        return candidate_features(xy, score, self.net.k, motion=motion)
+        kxy, post = candidate_features(xy, score, self.net.k, motion=motion)
+        return kxy, post, self.net.smoothed(kxy, post)
 
     def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor:
         """Normalised output ``(B, T_out, 2)`` for bits or :meth:`inputs`; ``y`` (metres) enables
         teacher forcing where used."""
         if self.uses_grid:
-            xy, post = self.inputs(x) if isinstance(x, torch.Tensor) else x
-            return self.normaliser.to_unit(self.net(xy, post))
+            xy, post, fine = self.inputs(x) if isinstance(x, torch.Tensor) else x
+            return self.normaliser.to_unit(self.net(xy, post, fine))
         return self.net(x, None if y is None else self.normaliser.to_unit(y))
 
     def loss(self, out: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, int]:

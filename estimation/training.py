@@ -231,8 +231,10 @@ def train(
     if est.uses_grid and not same_grid:
         raise EstimationError(f"{cfg.model} needs training and validation sets on one grid")
     if est.uses_grid and train_set.length >= 3:
-        # The smoother's motion statistics, measured where its candidates live: on grid points.
+        # The smoothers' motion statistics, measured where their candidates live: on grid points,
+        # and on the sub-cell lattice.
         est.net.motion.fit(train_set.grid_xy[train_set.index])
+        est.net.fit_fine(train_set.positions, train_set.grid_xy)
     opt = torch.optim.Adam(est.net.parameters(), lr=cfg.lr, foreach=True)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.lr_factor, patience=cfg.lr_patience)
     history: dict[str, list[float]] = {k: [] for k in _HISTORY_KEYS}

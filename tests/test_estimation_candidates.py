@@ -24,9 +24,10 @@ from estimation.models.candidates import (
     CandidateTransformer,
     candidate_features,
     motion_posterior,
+    subcell_mean,
     velocity_posterior,
 )
-from estimation.models.motion import MixtureMotion, MotionTable
+from estimation.models.motion import MixtureMotion, MotionTable, snap_to_lattice
 from estimation.synthetic import toy_sequence_set
 
 
@@ -244,10 +245,51 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     expect = MotionTable().fit(tr.grid_xy[tr.index])
     assert bool(est.net.motion.fitted)
     assert torch.equal(est.net.motion.log_accel_table, expect.log_accel_table)
-    xy, post = est.inputs(bits[:4])
+    xy, post, fine = est.inputs(bits[:4])
     assert torch.allclose(
         post[..., -1], velocity_posterior(xy, post[..., 0], expect).clamp(min=-30), atol=1e-5
     )
+    # and the sub-cell table, on the training positions snapped to the lattice (toy grid: 1 m)
+    lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
+    assert float(est.net.grid_step) == 1.0
+    assert torch.equal(est.net.motion_fine.log_accel_table, lattice.log_accel_table)
+    assert torch.allclose(fine, subcell_mean(xy, post[..., 0], post[..., -1], lattice), atol=1e-5)
+
+
+def test_snap_to_lattice_keeps_grid_points_for_odd_and_centres_cells_for_even():
+    u = np.array([[0.1, -0.2], [0.34, 0.9], [2.49, 4.9]])
+    assert np.allclose(snap_to_lattice(u, 3), [[0.0, -1 / 3], [1 / 3, 1.0], [2 + 1 / 3, 5.0]])
+    assert np.allclose(snap_to_lattice(u, 2), [[0.25, -0.25], [0.25, 0.75], [2.25, 4.75]])
+    assert np.allclose(snap_to_lattice(u, 1), np.round(u))
+
+
+def test_subcell_mean_against_enumeration_of_all_sub_cell_paths():
+    """Each kept cell becomes n_sub^2 points sharing its likelihood; the mean is the exact
+    posterior mean over all paths of those points."""
+    g = torch.Generator().manual_seed(5)
+    xy = torch.rand(3, 4, 2, generator=g) * 4  # 3 steps, 4 candidates
+    like = torch.rand(3, 4, generator=g) + 0.1
+    rank = torch.tensor([[3.0, 2.0, 1.0, 0.0]]).expand(3, 4)  # keeps the first two per step
+    motion = MixtureMotion(first_step_sigma=2.0)
+    got = subcell_mean(xy[None], like.log()[None], rank[None], motion, spacing=2.0, n_sub=2, k=2)[0]
+    off = torch.tensor([[-0.5, -0.5], [-0.5, 0.5], [0.5, -0.5], [0.5, 0.5]])  # quarter cells of 2 m
+    pts = (xy[:, :2, None] + off).reshape(3, 8, 2)
+    pts_like = like[:, :2, None].expand(-1, -1, 4).reshape(3, 8)
+    # the motion model sees grid units: enumerate in them, then back to metres
+    marg = _path_posterior_by_enumeration(pts / 2.0, pts_like, motion)
+    assert torch.allclose(got.double(), (marg[..., None] * pts.double()).sum(1), atol=1e-4)
+
+
+def test_subcell_smoother_finds_positions_inside_the_cells():
+    """Users on straight lines, seen only as their grid cells: the lattice table puts them closer
+    to the truth than the cells' centres, the quantisation floor of any cell-level estimate."""
+    true = _straight_tracks(n=200, length=7, seed=3)
+    lattice = MotionTable.lattice().fit(snap_to_lattice(_straight_tracks(n=4000, length=7, seed=4)))
+    cells = torch.from_numpy(np.round(true)).float()[:, :, None]  # one candidate: the true cell
+    fine = subcell_mean(cells, torch.zeros(cells.shape[:3]), torch.zeros(cells.shape[:3]), lattice)
+    cell_err = trajectory_rmse(cells[:, :, 0].numpy(), true).mean()
+    fine_err = trajectory_rmse(fine.numpy(), true).mean()
+    assert cell_err > 0.35 and fine_err < 0.8 * cell_err
 
 
 def test_evaluation_of_a_prefix_does_not_see_later_steps():

@@ -22,24 +22,28 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import torch
 from torch import nn
 
 from .embedding import sinusoidal_encoding
-from .motion import ACCELERATION, MixtureMotion, MotionTable
+from .motion import ACCELERATION, SUBCELLS, MixtureMotion, MotionTable, snap_to_lattice
 
 __all__ = [
     "CandidateTransformer",
     "candidate_features",
     "motion_posterior",
     "velocity_posterior",
+    "subcell_mean",
     "STEP_SIGMAS",
+    "FINE_K",
     "ACCELERATION",
 ]
 
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 _LOGP_FLOOR = -30.0  # log posteriors below this carry no information for the ranking
 STEP_SIGMAS = (2.0, 3.0, 10.0)  # metres per step: pedestrians to vehicles
+FINE_K = 6  # grid candidates per step that the sub-cell smoother splits
 
 
 def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> torch.Tensor:
@@ -189,6 +193,66 @@ def candidate_features(
     return torch.cat(outs_xy), torch.cat(outs_post).clamp(min=_LOGP_FLOOR)
 
 
+@torch.no_grad()
+def subcell_mean(
+    xy: torch.Tensor,
+    logp: torch.Tensor,
+    rank: torch.Tensor,
+    motion: MotionTable,
+    spacing: float = 1.0,
+    n_sub: int = SUBCELLS,
+    k: int = FINE_K,
+    block: int = 16,
+) -> torch.Tensor:
+    """Posterior-mean positions under the constant-velocity model on a lattice finer than the grid.
+
+    A fingerprint only tells which grid cell a user is in, but a user moving steadily crosses the
+    cells in a pattern that tells where in them it is. Each step's ``k`` best candidates (by
+    ``rank``) are split into ``n_sub x n_sub`` sub-cell points sharing their cell's likelihood,
+    and :func:`velocity_posterior` runs over those with ``motion``, a table measured on
+    trajectories snapped to that lattice (:meth:`MotionTable.lattice`, :func:`snap_to_lattice`).
+
+    Parameters
+    ----------
+    xy : (B, T, K, 2) float, metres
+        Grid candidates of every step.
+    logp : (B, T, K) float
+        Their step-wise log likelihoods.
+    rank : (B, T, K) float
+        Score choosing the ``k`` candidates split (e.g. the cell-level velocity posterior).
+    motion : MotionTable
+        Lattice motion statistics, in grid units.
+    spacing : float, metres
+        Grid spacing.
+    n_sub, k, block : int
+        Sub-cells per axis, candidates split per step, sequences smoothed at once.
+
+    Returns
+    -------
+    (B, T, 2) float32 positions, metres
+    """
+    k = min(int(k), xy.shape[2])
+    top = rank.topk(k, dim=-1).indices
+    cxy = torch.gather(xy.float(), 2, top[..., None].expand(-1, -1, -1, 2)) / spacing
+    clp = torch.gather(logp.float(), 2, top)
+    off = (torch.arange(n_sub, dtype=torch.float32) - (n_sub - 1) / 2) / n_sub
+    offs = torch.stack(torch.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)  # (n_sub^2, 2)
+    B, T = cxy.shape[:2]
+    sxy = (cxy[:, :, :, None] + offs).reshape(B, T, -1, 2)
+    slp = clp[..., None].expand(-1, -1, -1, len(offs)).reshape(B, T, -1)
+    out = []
+    for a in range(0, B, block):
+        w = velocity_posterior(sxy[a : a + block], slp[a : a + block], motion).exp()
+        out.append((w[..., None] * sxy[a : a + block]).sum(2))
+    return (torch.cat(out) if out else cxy[:, :, 0]) * spacing
+
+
+def cell_mean(xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
+    """Posterior-mean positions ``(B, T, 2)`` of :func:`candidate_features`' output under its
+    constant-velocity posterior (its last feature)."""
+    return (torch.softmax(post[..., -1], dim=-1)[..., None] * xy).sum(2)
+
+
 class CandidateTransformer(nn.Module):
     """Candidates of every step in, positions ``(B, T, 2)`` in metres out.
 
@@ -217,7 +281,7 @@ class CandidateTransformer(nn.Module):
             raise ValueError(f"need 1 <= k <= search (got k={k}, search={search})")
         self.search, self.k, self.d = int(search), int(k), int(d)
         n_post = 2 + len(STEP_SIGMAS)
-        self.embed = nn.Sequential(nn.Linear(2 + n_post, d), nn.ReLU(), nn.Linear(d, d))
+        self.embed = nn.Sequential(nn.Linear(4 + n_post, d), nn.ReLU(), nn.Linear(d, d))
         self.rank = nn.Embedding(self.k, d)
         layer = nn.TransformerEncoderLayer(d, heads, ff, dropout, batch_first=True)
         with warnings.catch_warnings():
@@ -225,26 +289,56 @@ class CandidateTransformer(nn.Module):
             self.encoder = nn.TransformerEncoder(layer, layers)
         self.logit = nn.Linear(d, 1)
         self.offset = nn.Linear(d, 2)
-        self.motion = MotionTable()  # measured on the training trajectories by estimation.train
-        # Start as the constant-velocity smoother: unit weight on its posterior, the learned terms
-        # at zero, so training starts from the classical answer.
+        self.gate = nn.Linear(d, 1)
+        # Measured on the training trajectories by estimation.train (fit_motion).
+        self.motion = MotionTable()
+        self.motion_fine = MotionTable.lattice()
+        self.register_buffer("grid_step", torch.tensor(1.0))
+        # Start as the classical smoother: unit weight on the constant-velocity posterior, the
+        # learned terms at zero, the output the sub-cell smoother's, so training starts from it.
         self.prior = nn.Parameter(torch.tensor([0.0] * (n_post - 1) + [1.0]))
-        for lin in (self.logit, self.offset):
+        for lin in (self.logit, self.offset, self.gate):
             nn.init.zeros_(lin.weight)
             nn.init.zeros_(lin.bias)
 
-    def forward(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
-        """``xy (B, T, k, 2)`` metres and ``post (B, T, k, P)`` from :func:`candidate_features` ->
-        positions ``(B, T, 2)`` metres."""
+    def fit_fine(self, positions: np.ndarray, grid_xy: np.ndarray) -> CandidateTransformer:
+        """Measure the sub-cell smoother's motion table on training trajectories ``positions
+        (n, L >= 3, 2)`` metres, snapped to the lattice of :func:`subcell_mean` over the grid points
+        ``grid_xy (G, 2)`` metres. Returns ``self``."""
+        grid_xy = np.asarray(grid_xy, dtype=np.float64)
+        steps = np.diff(np.unique(grid_xy[:, 0]))
+        spacing = float(steps.min()) if len(steps) else 1.0
+        u = (np.asarray(positions, dtype=np.float64) - grid_xy.min(0)) / spacing
+        self.motion_fine.fit(snap_to_lattice(u))
+        self.grid_step.fill_(spacing)
+        return self
+
+    def smoothed(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
+        """The classical estimate ``(B, T, 2)`` metres the network starts from: the sub-cell
+        smoother's (:func:`subcell_mean`) once the motion tables are measured, else the cell-level
+        constant-velocity posterior mean (``match-cv``)."""
+        if not bool(self.motion_fine.fitted):
+            return cell_mean(xy, post)
+        return subcell_mean(xy, post[..., 0], post[..., -1], self.motion_fine, float(self.grid_step))
+
+    def forward(self, xy: torch.Tensor, post: torch.Tensor, fine: torch.Tensor | None = None) -> torch.Tensor:
+        """``xy (B, T, k, 2)`` metres and ``post (B, T, k, P)`` from :func:`candidate_features`, and
+        the classical estimate ``fine (B, T, 2)`` metres (default :meth:`smoothed`) -> positions
+        ``(B, T, 2)`` metres."""
         B, T, K, _ = xy.shape
+        if fine is None:
+            fine = self.smoothed(xy, post)
         # Anchor: coordinate-wise median of the steps' best candidates, robust to an alias far away.
         anchor = xy[:, :, 0].median(dim=1).values[:, None, None]
-        feats = torch.cat([(xy - anchor) / _SCALE, post / 10.0], dim=-1)
+        near = (xy - fine[:, :, None]) / _SCALE
+        feats = torch.cat([(xy - anchor) / _SCALE, near, post / 10.0], dim=-1)
         h = self.embed(feats) + self.rank.weight[:K] + sinusoidal_encoding(torch.arange(T), self.d)[:, None]
         h = self.encoder(h.reshape(B, T * K, self.d)).reshape(B, T, K, self.d)
         logits = self.logit(h)[..., 0] + (post * self.prior).sum(-1)
         w = torch.softmax(logits, dim=-1)  # (B, T, K)
-        rel = (w[..., None] * (xy - anchor)).sum(2)
-        # A small learned correction lets the estimate leave the grid points' convex hull by a little.
+        cells = (w[..., None] * xy).sum(2)
+        # The network moves the classical estimate toward its own weighting of the candidates as
+        # far as it trusts that weighting (the gate), plus a small learned correction.
+        pooled = (w[..., None] * h).sum(2)
         corr = torch.tanh((w[..., None] * self.offset(h)).sum(2))
-        return anchor[:, :, 0] + rel + corr
+        return fine + self.gate(pooled) * (cells - fine) + corr

@@ -24,13 +24,24 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["MixtureMotion", "MotionTable", "ACCELERATION", "FIRST_STEP_SIGMA"]
+__all__ = ["MixtureMotion", "MotionTable", "ACCELERATION", "FIRST_STEP_SIGMA", "SUBCELLS", "snap_to_lattice"]
 
 # Change of displacement between consecutive steps (m/step^2), as (weight, sigma) of a Gaussian
 # mixture: mostly steady motion with the grid's quantisation, sometimes a turn, stop or start.
 # Chosen by comparing a few mixtures on 1000 test trajectories of the default data set at 6 dB.
 ACCELERATION = ((0.9, 0.7), (0.1, 5.0))
 FIRST_STEP_SIGMA = 15.0  # metres; prior scale of the first displacement (up to vehicle speeds)
+SUBCELLS = 3  # lattice points per grid spacing and axis of the sub-cell smoother
+
+
+def snap_to_lattice(u: np.ndarray, n_sub: int = SUBCELLS) -> np.ndarray:
+    """Nearest point of the lattice ``n_sub`` times finer than the grid whose points are the grid
+    points plus the sub-cell offsets ``(j - (n_sub - 1) / 2) / n_sub``, ``j = 0..n_sub-1``.
+
+    ``u (..., 2)`` and the result are in grid units (metres / grid spacing) from a grid point.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    return np.round(u * n_sub) / n_sub if n_sub % 2 else (np.floor(u * n_sub) + 0.5) / n_sub
 
 
 class MixtureMotion:
@@ -93,6 +104,13 @@ class MotionTable(nn.Module):
         r = (torch.arange(n_step) + 0.5) * bin
         self.register_buffer("log_step_table", -torch.log(2 * math.pi * r * max_step))
         self.register_buffer("fitted", torch.tensor(False))
+
+    @classmethod
+    def lattice(cls, n_sub: int = SUBCELLS) -> MotionTable:
+        """An unfitted table for positions on the lattice of :func:`snap_to_lattice`, in grid units:
+        one bin per lattice step, centred on the lattice's accelerations so that rounding cannot
+        move one to the next bin."""
+        return cls(bin=1.0 / n_sub, reach=16.0 + 0.5 / n_sub)
 
     @staticmethod
     def _frame(v: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

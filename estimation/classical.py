@@ -323,7 +323,7 @@ class MatchSmoother:
     Every step keeps its ``search`` most likely grid points; a random walk prunes them to ``k`` and
     the constant-velocity model's posterior mean over those is the estimate
     (:func:`~estimation.models.candidates.candidate_features`). It has no parameters to fit: this is
-    ``tn-match`` before training.
+    ``tn-match`` before training without its measured motion tables (and its sub-cell stage).
 
     Parameters
     ----------

@@ -123,3 +123,22 @@ def test_evaluation_bookkeeping_with_known_errors():
     kinds = {r["kind"] for r in ev.rows}
     assert "all" in kinds and kinds - {"all"} <= set(KINDS)
     assert ev.examples["test"]["off5"].shape[1:] == (5, 2)
+
+
+def test_matcher_likelihood_is_exact_far_in_the_tails():
+    """Log-likelihoods are built in log space: a bit 95 dB below threshold that fires costs its
+    exact log probability (about -500), not an underflow to -inf, down to the floor ``log eps``."""
+    pdp = torch.tensor([[[-110.0, -210.0, -float("inf")]], [[-120.0, -116.0, -114.0]]])  # (G=2, M=1, 3)
+    xy = np.array([[0.0, 0.0], [1.0, 0.0]])
+    bits = torch.tensor([[[1.0, 1.0, 0.0]], [[0.0, 0.0, 1.0]]])
+    m = FingerprintMatcher(pdp, xy, sigma=3.0, threshold=-115.0, eps=1e-300)
+    got = m.scores(bits).double()
+    z = (pdp.double().reshape(2, 3) - -115.0) / 3.0
+    log_p, log_q = torch.special.log_ndtr(z), torch.special.log_ndtr(-z)
+    floor = math.log(1e-300)
+    log_p, log_q = log_p.clamp(min=floor), log_q.clamp(min=floor)
+    x = bits.reshape(2, 3).double()
+    want = x @ log_p.T + (1 - x) @ log_q.T  # (fingerprints, grid points)
+    assert torch.isfinite(got).all()
+    assert torch.allclose(got, want, rtol=1e-4)
+    assert float(want[0, 0]) < -400  # the second bit of fingerprint 0 is far in the tail

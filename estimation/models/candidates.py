@@ -16,6 +16,13 @@ starts from. Users keep their heading and speed for seconds, so the second-order
 aliases a random walk cannot tell apart and averages the grid's quantisation over several steps.
 Its motion statistics (:class:`~estimation.models.motion.MotionTable`) are measured on the
 training trajectories and saved with the network.
+
+A fingerprint tells only the grid cell, but the pattern in which a steady user crosses cells tells
+where in them it is: a third smoother (:func:`subcell_mean`) splits the best few candidates of
+every step into points of a lattice three times finer and runs the constant-velocity model there,
+with a table measured on the training trajectories snapped to that lattice. Its estimate is the
+network's starting point; the network moves it toward its own weighting of the candidates where it
+learned to trust that.
 """
 
 from __future__ import annotations

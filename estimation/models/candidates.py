@@ -205,7 +205,7 @@ def subcell_mean(
     xy: torch.Tensor,
     logp: torch.Tensor,
     rank: torch.Tensor,
-    motion: MotionTable,
+    motion: MixtureMotion | MotionTable,
     spacing: float = 1.0,
     n_sub: int = SUBCELLS,
     k: int = FINE_K,
@@ -227,8 +227,8 @@ def subcell_mean(
         Their step-wise log likelihoods.
     rank : (B, T, K) float
         Score choosing the ``k`` candidates split (e.g. the cell-level velocity posterior).
-    motion : MotionTable
-        Lattice motion statistics, in grid units.
+    motion : MotionTable or MixtureMotion
+        Motion model in grid units (a :meth:`MotionTable.lattice` fitted on the lattice).
     spacing : float, metres
         Grid spacing.
     n_sub, k, block : int

@@ -24,7 +24,7 @@ import torch
 from .data import SequenceSet
 from .errors import EstimationError
 from .metrics import trajectory_rmse
-from .models.candidates import candidate_features
+from .models.candidates import candidate_features, cell_mean
 
 __all__ = ["FingerprintMatcher", "rts_smoother", "kalman_forecast", "KnnKalman", "MatchSmoother"]
 
@@ -348,9 +348,7 @@ class MatchSmoother:
 
     def smooth(self, xy: torch.Tensor, score: torch.Tensor) -> np.ndarray:
         """Posterior-mean positions ``(n, T, 2)`` metres of :meth:`search`'s candidates."""
-        kxy, post = candidate_features(xy, score, self.k)
-        w = torch.softmax(post[..., -1], dim=-1)
-        return (w[..., None] * kxy).sum(2).numpy().astype(np.float64)
+        return cell_mean(*candidate_features(xy, score, self.k)).numpy().astype(np.float64)
 
     def predict(self, bits: torch.Tensor) -> np.ndarray:
         """``bits (n, T, M, N_s)`` -> ``(n, T, 2)`` metres."""

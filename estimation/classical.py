@@ -42,8 +42,8 @@ class FingerprintMatcher:
     eps : float
         Probabilities are clipped to ``[eps, 1 - eps]`` (in log space) so that a bit the model calls
         impossible costs a point ``log eps`` instead of vetoing it. The observations follow the
-        model exactly, so a small floor is best: 1e-6 ranks a user standing still 1.2 m closer on
-        average than 1e-3 (test/seen of the default data set at 6 dB).
+        model exactly, so a small floor is best: 1e-6 puts users standing still about 1.2 m closer on
+        average than 1e-3 (13 on test/seen of the default data set at 6 dB).
     chunk : int
         Grid points per block when the weights are built.
 

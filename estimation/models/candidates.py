@@ -297,7 +297,7 @@ class CandidateTransformer(nn.Module):
         self.logit = nn.Linear(d, 1)
         self.offset = nn.Linear(d, 2)
         self.gate = nn.Linear(d, 1)
-        # Measured on the training trajectories by estimation.train (fit_motion).
+        # Measured on the training trajectories by estimation.train (motion.fit, fit_fine).
         self.motion = MotionTable()
         self.motion_fine = MotionTable.lattice()
         self.register_buffer("grid_step", torch.tensor(1.0))

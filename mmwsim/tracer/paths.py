@@ -15,12 +15,39 @@ diag(1, -1)`` (phi_hat flips sign between the two bases).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from enum import IntEnum
 
 import numpy as np
 
 from ..constants import SPEED_OF_LIGHT
 
-__all__ = ["Paths", "POLARISATIONS"]
+__all__ = ["Paths", "POLARISATIONS", "Interaction", "PathKind"]
+
+
+class Interaction(IntEnum):
+    """What happens at one interaction of a path (values of :attr:`Paths.types`)."""
+
+    NONE = 0
+    """Padding after a path's last interaction."""
+    REFLECTION = 1
+    """Specular reflection off a planar face."""
+    DIFFRACTION = 2
+    """Diffraction at a wedge (an edge shared by two faces)."""
+    DIFFUSE = 3
+    """Diffuse scattering off a surface tile (always a path's last interaction)."""
+
+
+class PathKind(IntEnum):
+    """A path's kind as a whole (values of :meth:`Paths.kind`), in the order views colour them."""
+
+    LINE_OF_SIGHT = 0
+    REFLECTED = 1
+    """Specular reflections only."""
+    DIFFRACTED = 2
+    """One diffraction, with or without reflections."""
+    DIFFUSE = 3
+    """Ends in diffuse scattering (its power adds incoherently)."""
+
 
 POLARISATIONS = {"V": np.array([1.0, 0.0]), "H": np.array([0.0, 1.0])}
 """Unit field vectors in the (theta_hat, phi_hat) basis: V is theta_hat, H is phi_hat."""
@@ -47,13 +74,16 @@ class Paths:
     aod, aoa : (n_paths, 2) float64
         Departure and arrival directions as (zenith, azimuth), radians.
     order : (n_paths,) int8
-        Number of reflections; 0 is line of sight.
+        Number of interactions (reflections, diffraction, diffuse); 0 is line of sight.
     faces : (n_paths, max_reflections) int64
         Triangles hit, in order; -1 pads.
     objects : (n_paths, max_reflections) int32
         Index of each interaction's scene object; -1 pads.
     points : (n_paths, max_reflections, 3) float64
         Interaction points, metres; NaN pads.
+    types : (n_paths, max_reflections) int8, optional
+        :class:`Interaction` of each interaction; by default a reflection for each of
+        the first ``order`` columns and :attr:`Interaction.NONE` after them.
     """
 
     tx: np.ndarray
@@ -68,6 +98,12 @@ class Paths:
     faces: np.ndarray
     objects: np.ndarray
     points: np.ndarray
+    types: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.types is None:
+            k = np.arange(self.faces.shape[1])
+            self.types = np.where(k[None, :] < self.order[:, None], Interaction.REFLECTION, 0).astype(np.int8)
 
     @property
     def n_paths(self) -> int:
@@ -89,6 +125,14 @@ class Paths:
     @property
     def wavelength(self) -> float:
         return SPEED_OF_LIGHT / self.frequency
+
+    def kind(self) -> np.ndarray:
+        """(n_paths,) int8 :class:`PathKind` of each path."""
+        t = self.types
+        out = np.where(self.order > 0, PathKind.REFLECTED, PathKind.LINE_OF_SIGHT).astype(np.int8)
+        out[np.any(t == Interaction.DIFFRACTION, axis=1)] = PathKind.DIFFRACTED
+        out[np.any(t == Interaction.DIFFUSE, axis=1)] = PathKind.DIFFUSE
+        return out
 
     def offsets(self) -> np.ndarray:
         """(n_rx + 1,) int64: paths of receiver i are ``offsets[i]:offsets[i+1]``."""
@@ -124,7 +168,7 @@ class Paths:
     def select(self, mask: np.ndarray) -> Paths:
         """The paths where ``mask`` (n_paths,) is true, receivers unchanged."""
         kw = {f.name: getattr(self, f.name) for f in fields(self)}
-        for name in ("rx_index", "length", "jones", "aod", "aoa", "order", "faces", "objects", "points"):
+        for name in _PER_PATH:
             kw[name] = kw[name][mask]
         return Paths(**kw)
 
@@ -140,8 +184,8 @@ class Paths:
             rx=np.concatenate([p.rx for p in parts]),
             frequency=first.frequency,
             rx_index=np.concatenate([p.rx_index + s for p, s in zip(parts, shift, strict=True)]),
-            **{
-                name: np.concatenate([getattr(p, name) for p in parts])
-                for name in ("length", "jones", "aod", "aoa", "order", "faces", "objects", "points")
-            },
+            **{name: np.concatenate([getattr(p, name) for p in parts]) for name in _PER_PATH[1:]},
         )
+
+
+_PER_PATH = ("rx_index", "length", "jones", "aod", "aoa", "order", "faces", "objects", "points", "types")

@@ -17,14 +17,11 @@ import numpy as np
 from ..geometry import RayCaster
 from .reflectors import Reflectors
 
-__all__ = ["Shot", "fibonacci_directions", "shoot", "sequence_cells", "CellGrid"]
+__all__ = ["Shot", "Legs", "fibonacci_directions", "shoot"]
 
 # Offset of a bounced ray's origin off its plane, metres: Embree works in float32
 # (about 3e-5 m resolution at 400 m), so a smaller offset could re-hit the plane.
 _BOUNCE_OFFSET = 1e-3
-# Receiver cells are marked within this many ray spacings (times the unfolded length) of a
-# sequence's rays: twice the mean spacing, since along a thin beam rays lie one spacing apart.
-_GAP_FACTOR = 2.0
 
 
 def fibonacci_directions(n: int) -> np.ndarray:
@@ -83,6 +80,10 @@ class Shot:
     sample : list of (n_points, 3) float64
         Polylines of an evenly spread sample of the shot rays (transmitter, bounce
         points, last hit or a point 1 km out), for display.
+    hits : list of (n_k, 2) int64
+        ``hits[k]``: distinct (sequence of order k, triangle) pairs such that some ray
+        that followed the sequence next hit the triangle (``hits[0]``: triangles hit
+        straight from the transmitter). Triangles outside ``hit_faces`` are left out.
     """
 
     n_rays: int
@@ -91,6 +92,7 @@ class Shot:
     legs: list[Legs | None]
     rays_cast: int
     sample: list[np.ndarray]
+    hits: list[np.ndarray]
 
 
 def shoot(
@@ -101,6 +103,8 @@ def shoot(
     n_rays: int,
     batch: int = 1 << 20,
     n_sample: int = 500,
+    hit_faces: np.ndarray | None = None,
+    hit_orders: int = 0,
 ) -> Shot:
     """Shoot ``n_rays`` rays from ``tx`` and bounce them ``max_reflections`` times.
 
@@ -117,6 +121,10 @@ def shoot(
         Rays traced together (memory bound; the result does not depend on it).
     n_sample : int
         Rays kept as polylines in ``Shot.sample``.
+    hit_faces : (n_faces,) bool, optional
+        Triangles whose hits are recorded in ``Shot.hits`` (none by default).
+    hit_orders : int
+        Hits are recorded after sequences of order ``0 .. hit_orders - 1``.
 
     Returns
     -------
@@ -129,6 +137,8 @@ def shoot(
     parents: list[list[int]] = [[] for _ in range(max_reflections + 1)]
     legs: list[list[Legs]] = [[] for _ in range(max_reflections + 1)]
     stride = max(1, n_rays // n_sample)
+    hits: list[list[np.ndarray]] = [[] for _ in range(max_reflections + 1)]
+    n_faces = caster.n_faces
     sample: dict[int, list[np.ndarray]] = {}
     rays_cast = 0
     for b0 in range(0, n_rays, batch):
@@ -143,6 +153,10 @@ def shoot(
         for k in range(max_reflections + 1):
             t, face = caster.intersect(origin, dirs)
             rays_cast += len(origin)
+            if k < hit_orders and hit_faces is not None:
+                sel = face >= 0
+                sel[sel] = hit_faces[face[sel]]
+                hits[k].append(np.unique(seq_id[sel] * n_faces + face[sel]))
             if k:
                 legs[k].append(
                     Legs(
@@ -188,7 +202,12 @@ def shoot(
         Legs.concatenate(legs[k]) if legs[k] else _empty_legs() for k in range(1, max_reflections + 1)
     ]
     polylines = [np.asarray(sample[i]) for i in sorted(sample)]
-    return Shot(n_rays, float(np.sqrt(4.0 * np.pi / n_rays)), sequences, all_legs, rays_cast, polylines)
+    hit_pairs = []
+    for h in hits:
+        keys = np.unique(np.concatenate(h)) if h else np.zeros(0, np.int64)
+        hit_pairs.append(np.column_stack([keys // max(n_faces, 1), keys % max(n_faces, 1)]))
+    spacing = float(np.sqrt(4.0 * np.pi / n_rays))
+    return Shot(n_rays, spacing, sequences, all_legs, rays_cast, polylines, hit_pairs)
 
 
 def _fib_slice(n: int, start: int, count: int) -> np.ndarray:
@@ -203,131 +222,3 @@ def _fib_slice(n: int, start: int, count: int) -> np.ndarray:
 def _empty_legs() -> Legs:
     f = np.zeros(0, np.float32)
     return Legs(np.zeros(0, np.int32), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32), f, f)
-
-
-@dataclass(frozen=True)
-class CellGrid:
-    """A horizontal grid of square cells that bins receivers and ray legs.
-
-    Attributes
-    ----------
-    origin : (2,) float64
-        x, y of the corner of cell (0, 0), metres.
-    size : float
-        Cell side, metres.
-    shape : (2,) int
-        Cells along x and y.
-    z_range : (2,) float64
-        Heights spanned by the receivers, metres.
-    """
-
-    origin: tuple[float, float]
-    size: float
-    shape: tuple[int, int]
-    z_range: tuple[float, float]
-
-    @property
-    def n_cells(self) -> int:
-        return int(self.shape[0] * self.shape[1])
-
-    def cell_of(self, xy: np.ndarray) -> np.ndarray:
-        """(n,) int64 linear cell index of points (n, 2); -1 outside the grid."""
-        ij = np.floor((xy - np.asarray(self.origin)) / self.size).astype(np.int64)
-        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
-        return np.where(inside, ij[:, 0] + self.shape[0] * ij[:, 1], -1)
-
-
-def sequence_cells(legs: Legs, grid: CellGrid, spacing: float, chunk: int = 1 << 20) -> np.ndarray:
-    """The cells where each candidate sequence of one order may reach a receiver.
-
-    A sequence's rays sample the beam it illuminates, spread by ``spacing`` radians
-    around its image source; a receiver inside the beam lies within about
-    ``spacing x unfolded length`` of one of those rays. Each leg is clipped to the
-    receivers' height range widened by that gap, sampled every half cell, and the
-    cells around the samples (radius gap + half a step) are marked.
-
-    Parameters
-    ----------
-    legs : Legs
-    grid : CellGrid
-    spacing : float
-        Angular spacing of the shot rays, radians.
-    chunk : int
-        Legs processed together (memory bound; the result does not depend on it).
-
-    Returns
-    -------
-    (n_pairs,) int64
-        Sorted unique keys ``seq * grid.n_cells + cell``.
-    """
-    parts = [
-        _leg_cells(Legs(*(getattr(legs, f)[a : a + chunk] for f in Legs.__dataclass_fields__)), grid, spacing)
-        for a in range(0, len(legs.seq), chunk)
-    ]
-    return np.unique(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)
-
-
-def _leg_cells(legs: Legs, grid: CellGrid, spacing: float, max_samples: int = 1 << 22) -> np.ndarray:
-    if len(legs.seq) == 0:
-        return np.zeros(0, dtype=np.int64)
-    c = grid.size
-    x0, y0 = grid.origin
-    x1, y1 = x0 + grid.shape[0] * c, y0 + grid.shape[1] * c
-    z0, z1 = grid.z_range
-    s, d = legs.start.astype(np.float64), legs.direction.astype(np.float64)
-    length = legs.length.astype(np.float64)
-    # Farthest a leg can travel inside the receivers' box: bounds the gap of long or endless legs.
-    box_lo, box_hi = np.array([x0, y0, z0]), np.array([x1, y1, z1])
-    reach = np.sqrt(np.sum(np.maximum(np.abs(s - box_lo), np.abs(s - box_hi)) ** 2, axis=1))
-    far = np.minimum(length, reach + 1.0)
-    # Gap to the nearest ray of the same sequence, at the farthest useful point of the leg.
-    gap = _GAP_FACTOR * spacing * (legs.unfolded.astype(np.float64) + far) + 0.05
-    lo = np.zeros(len(s))
-    hi = far.copy()
-    for axis, a0, a1 in ((0, x0, x1), (1, y0, y1), (2, z0, z1)):
-        # Slab clip with the per-leg margin: parameter range where the coordinate is in [a0 - g, a1 + g].
-        da = d[:, axis]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta = (a0 - gap - s[:, axis]) / da
-            tb = (a1 + gap - s[:, axis]) / da
-        flat = np.abs(da) < 1e-12
-        inside = (s[:, axis] >= a0 - gap) & (s[:, axis] <= a1 + gap)
-        tmin = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
-        tmax = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
-        lo = np.maximum(lo, tmin)
-        hi = np.minimum(hi, tmax)
-    ok = hi >= lo
-    idx = np.flatnonzero(ok)
-    step = c / 2.0
-    n_samp = np.floor((hi[idx] - lo[idx]) / step).astype(np.int64) + 2
-    radius = np.ceil((gap[idx] + step / 2.0) / c).astype(np.int64)
-    keys = []
-    cum = np.cumsum(n_samp)
-    start = 0
-    while start < len(idx):
-        done = cum[start - 1] if start else 0
-        stop = max(int(np.searchsorted(cum, done + max_samples, side="right")), start + 1)
-        sel = idx[start:stop]
-        ns = n_samp[start:stop]
-        rad = radius[start:stop]
-        leg_of = np.repeat(np.arange(len(sel)), ns)
-        first = np.cumsum(ns) - ns
-        j = np.arange(len(leg_of)) - first[leg_of]
-        tt = np.minimum(lo[sel][leg_of] + j * step, hi[sel][leg_of])
-        pts = s[sel][leg_of, :2] + tt[:, None] * d[sel][leg_of, :2]
-        ij = np.floor((pts - np.asarray(grid.origin)) / c).astype(np.int64)
-        seq = legs.seq[sel].astype(np.int64)[leg_of]
-        r = rad[leg_of]
-        for rr in np.unique(r):
-            m = r == rr
-            off = np.arange(-rr, rr + 1)
-            ox, oy = np.meshgrid(off, off, indexing="ij")
-            ci = ij[m, 0:1] + ox.ravel()[None, :]
-            cj = ij[m, 1:2] + oy.ravel()[None, :]
-            valid = (ci >= 0) & (cj >= 0) & (ci < grid.shape[0]) & (cj < grid.shape[1])
-            key = seq[m][:, None] * grid.n_cells + ci + grid.shape[0] * cj
-            keys.append(np.unique(key[valid]))
-        start = stop
-    if not keys:
-        return np.zeros(0, dtype=np.int64)
-    return np.unique(np.concatenate(keys))

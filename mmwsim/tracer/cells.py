@@ -1,0 +1,282 @@
+"""Where a candidate can deliver energy: ray legs binned into cells around the receivers.
+
+Every candidate (a reflector sequence, or a diffraction sequence) is represented by
+the legs of the rays that followed it. A receiver lies within about ``gap`` of one
+of those legs if the candidate can reach it, where ``gap`` grows with the distance
+travelled (rays spread apart). Legs are clipped to the receivers' box widened by
+the gap, walked in half-cell steps, and every cell within the gap of a step is
+marked for the leg's candidate. The result is a sparse (cell -> candidates) table
+from which (candidate, receiver) pairs are drawn for the exact solve.
+
+The marking runs in a compiled kernel: legs are counting-sorted by candidate, and
+a stamp per cell (the last candidate that marked it) removes duplicates without
+hashing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._jit import njit
+
+__all__ = ["CellLattice", "CandidateCells", "LegSet", "mark_cells"]
+
+
+@dataclass(frozen=True)
+class CellLattice:
+    """A horizontal lattice of square cells over a slab of heights.
+
+    Attributes
+    ----------
+    origin : (2,) float
+        x, y of the corner of cell (0, 0), metres; a multiple of ``size``, so lattices
+        of different extents bin the same point alike.
+    size : float
+        Cell side, metres.
+    shape : (2,) int
+        Cells along x and y.
+    z_range : (2,) float
+        Heights of the receivers, metres.
+    """
+
+    origin: tuple[float, float]
+    size: float
+    shape: tuple[int, int]
+    z_range: tuple[float, float]
+
+    @classmethod
+    def covering(
+        cls, lo: np.ndarray, hi: np.ndarray, size: float, z_range: tuple[float, float]
+    ) -> CellLattice:
+        """The lattice of ``size`` cells aligned to multiples of ``size`` that covers ``lo..hi`` (x, y)."""
+        o = np.floor(np.asarray(lo, float)[:2] / size) * size
+        shape = np.floor((np.asarray(hi, float)[:2] - o) / size).astype(np.int64) + 1
+        return cls((float(o[0]), float(o[1])), float(size), (int(shape[0]), int(shape[1])), z_range)
+
+    @property
+    def n_cells(self) -> int:
+        return int(self.shape[0] * self.shape[1])
+
+    def cell_of(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) int64 linear cell index of points (n, 2+); -1 outside the lattice."""
+        ij = np.floor((np.asarray(xy)[:, :2] - np.asarray(self.origin)) / self.size).astype(np.int64)
+        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
+        return np.where(inside, ij[:, 0] + self.shape[0] * ij[:, 1], -1)
+
+
+@dataclass
+class LegSet:
+    """Ray legs of many candidates, with the tolerance each one is marked with.
+
+    Attributes
+    ----------
+    cand : (m,) int64
+        Candidate of each leg.
+    start, direction : (m, 3) float32
+        Origin and unit direction, metres.
+    length : (m,) float32
+        Distance to the next hit, ``inf`` for a ray that leaves the scene, metres.
+    gap0, slope : (m,) float32
+        Cells within ``gap0 + slope * t`` of the point at parameter ``t`` are marked, metres.
+    """
+
+    cand: np.ndarray
+    start: np.ndarray
+    direction: np.ndarray
+    length: np.ndarray
+    gap0: np.ndarray
+    slope: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.cand))
+
+    @staticmethod
+    def concatenate(parts: list[LegSet]) -> LegSet:
+        if not parts:
+            return LegSet.empty()
+        names = LegSet.__dataclass_fields__
+        return LegSet(*(np.concatenate([getattr(p, f) for p in parts]) for f in names))
+
+    @staticmethod
+    def empty() -> LegSet:
+        f = np.zeros(0, np.float32)
+        v = np.zeros((0, 3), np.float32)
+        return LegSet(np.zeros(0, np.int64), v, v, f, f, f)
+
+
+@dataclass
+class CandidateCells:
+    """Sparse table of the cells each candidate may reach, grouped by cell.
+
+    Attributes
+    ----------
+    lattice : CellLattice
+    cell_start : (n_cells + 1,) int64
+        Candidates of cell ``c`` are ``cand[cell_start[c]:cell_start[c + 1]]``, ascending.
+    cand : (nnz,) int64
+    """
+
+    lattice: CellLattice
+    cell_start: np.ndarray
+    cand: np.ndarray
+
+    @property
+    def nnz(self) -> int:
+        return int(len(self.cand))
+
+    def pairs(self, rx: np.ndarray, batch: int = 1 << 20):
+        """(candidate, receiver) index pairs for receivers ``rx`` (n, 3), in batches.
+
+        Yields
+        ------
+        cand, rx_index : (b,) int64
+            Sorted by candidate, then receiver, within each batch.
+        """
+        cell = self.lattice.cell_of(rx)
+        ok = cell >= 0
+        idx = np.flatnonzero(ok)
+        counts = self.cell_start[cell[idx] + 1] - self.cell_start[cell[idx]]
+        keep = counts > 0
+        idx, counts = idx[keep], counts[keep]
+        if not len(idx):
+            return
+        cum = np.cumsum(counts)
+        start = 0
+        while start < len(idx):
+            done = cum[start - 1] if start else 0
+            stop = max(int(np.searchsorted(cum, done + batch, side="right")), start + 1)
+            c = counts[start:stop]
+            rep = np.repeat(np.arange(stop - start), c)
+            within = np.arange(len(rep)) - (np.cumsum(c) - c)[rep]
+            r = idx[start:stop][rep]
+            k = self.cand[self.cell_start[cell[r]] + within]
+            order = np.lexsort((r, k))
+            yield k[order], r[order]
+            start = stop
+
+
+def mark_cells(legs: LegSet, n_cand: int, lattice: CellLattice) -> CandidateCells:
+    """The cells each candidate's legs pass within their gap of, at the receivers' heights.
+
+    Parameters
+    ----------
+    legs : LegSet
+    n_cand : int
+        Candidates are ``0 .. n_cand - 1``.
+    lattice : CellLattice
+
+    Returns
+    -------
+    CandidateCells
+    """
+    nx, ny = lattice.shape
+    empty = CandidateCells(lattice, np.zeros(lattice.n_cells + 1, np.int64), np.zeros(0, np.int64))
+    if len(legs) == 0 or n_cand == 0:
+        return empty
+    order = _counting_order(legs.cand.astype(np.int64), n_cand)
+    keys = _mark(
+        order,
+        legs.cand.astype(np.int64),
+        n_cand,
+        np.ascontiguousarray(legs.start, np.float64),
+        np.ascontiguousarray(legs.direction, np.float64),
+        legs.length.astype(np.float64),
+        legs.gap0.astype(np.float64),
+        legs.slope.astype(np.float64),
+        lattice.origin[0],
+        lattice.origin[1],
+        lattice.size,
+        nx,
+        ny,
+        lattice.z_range[0],
+        lattice.z_range[1],
+    )
+    # keys = cell * n_cand + cand: one sort groups them by cell with candidates ascending.
+    keys.sort()
+    cell = keys // n_cand
+    cell_start = np.searchsorted(cell, np.arange(lattice.n_cells + 1)).astype(np.int64)
+    return CandidateCells(lattice, cell_start, keys % n_cand)
+
+
+@njit(cache=True)
+def _counting_order(cand, n_cand):  # pragma: no cover - compiled
+    count = np.zeros(n_cand + 1, np.int64)
+    for k in cand:
+        count[k + 1] += 1
+    for i in range(n_cand):
+        count[i + 1] += count[i]
+    order = np.empty(len(cand), np.int64)
+    for i in range(len(cand)):
+        k = cand[i]
+        order[count[k]] = i
+        count[k] += 1
+    return order
+
+
+@njit(cache=True)
+def _mark(
+    order, cand, n_cand, start, direc, length, gap0, slope, x0, y0, c, nx, ny, z0, z1
+):  # pragma: no cover
+    stamp = np.full(nx * ny, -1, np.int64)
+    out = np.empty(1 << 16, np.int64)
+    n_out = 0
+    x1 = x0 + nx * c
+    y1 = y0 + ny * c
+    step = c / 2.0
+    lo_b = (x0, y0, z0)
+    hi_b = (x1, y1, z1)
+    for ii in range(len(order)):
+        i = order[ii]
+        k = cand[i]
+        sx, sy, sz = start[i, 0], start[i, 1], start[i, 2]
+        dx, dy, dz = direc[i, 0], direc[i, 1], direc[i, 2]
+        # Farthest the leg can travel inside the box: bounds the gap of endless legs.
+        ex = max(abs(sx - x0), abs(sx - x1))
+        ey = max(abs(sy - y0), abs(sy - y1))
+        ez = max(abs(sz - z0), abs(sz - z1))
+        far = min(length[i], np.sqrt(ex * ex + ey * ey + ez * ez) + 1.0)
+        gmax = gap0[i] + slope[i] * far
+        lo = 0.0
+        hi = far
+        s3 = (sx, sy, sz)
+        d3 = (dx, dy, dz)
+        for a in range(3):
+            sa = s3[a]
+            da = d3[a]
+            a0 = lo_b[a] - gmax
+            a1 = hi_b[a] + gmax
+            if abs(da) < 1e-12:
+                if sa < a0 or sa > a1:
+                    hi = -1.0
+                continue
+            ta = (a0 - sa) / da
+            tb = (a1 - sa) / da
+            if ta > tb:
+                ta, tb = tb, ta
+            lo = max(lo, ta)
+            hi = min(hi, tb)
+        if hi < lo:
+            continue
+        n_samp = int(np.floor((hi - lo) / step)) + 2
+        for j in range(n_samp):
+            t = min(lo + j * step, hi)
+            px = sx + t * dx
+            py = sy + t * dy
+            g = gap0[i] + slope[i] * t
+            r = int(np.ceil((g + step / 2.0) / c))
+            ci = int(np.floor((px - x0) / c))
+            cj = int(np.floor((py - y0) / c))
+            for a in range(max(ci - r, 0), min(ci + r, nx - 1) + 1):
+                for b in range(max(cj - r, 0), min(cj + r, ny - 1) + 1):
+                    cell = a + nx * b
+                    if stamp[cell] != k:
+                        stamp[cell] = k
+                        if n_out == len(out):
+                            grown = np.empty(2 * len(out), np.int64)
+                            grown[:n_out] = out[:n_out]
+                            out = grown
+                        out[n_out] = cell * n_cand + k
+                        n_out += 1
+    return out[:n_out].copy()

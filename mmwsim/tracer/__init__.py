@@ -1,6 +1,6 @@
 """Exact specular ray tracing (Embree candidates, image-method geometry)."""
 
-from .fresnel import fresnel, slab
+from .fresnel import Surface, fresnel, slab
 from .paths import POLARISATIONS, Interaction, PathKind, Paths
 from .reflectors import Reflectors, group_reflectors
 from .tracer import DEFAULT_RAYS, Tracer, trace
@@ -12,6 +12,7 @@ __all__ = [
     "PathKind",
     "Paths",
     "Reflectors",
+    "Surface",
     "Tracer",
     "fresnel",
     "group_reflectors",

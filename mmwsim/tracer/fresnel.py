@@ -11,13 +11,33 @@ with the coefficients of ITU-R P.2040 (equations 31a/b)::
 
 (derived from the continuity of tangential E and H; a perfect conductor gives
 R_TE = -1, R_TM = +1, and at normal incidence both describe the same field).
+
+:class:`Surface` is the one reflection coefficient of the tracer: the specular paths, the
+reflection terms inside the UTD diffraction coefficient and the diffuse-scattering model all
+take their coefficients from it, so that the field is continuous across shadow and
+reflection boundaries.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-__all__ = ["fresnel", "slab", "reflection", "spherical_basis", "bounce_matrices", "direction_angles"]
+if TYPE_CHECKING:
+    from ..materials import Material
+
+__all__ = [
+    "Surface",
+    "fresnel",
+    "slab",
+    "reflection",
+    "spherical_basis",
+    "bounce_matrices",
+    "direction_angles",
+]
 
 
 def fresnel(eps: np.ndarray | complex, cos_theta: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +120,93 @@ def reflection(
     return r_te, r_tm
 
 
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """Reflecting surfaces, one per entry (faces, objects or interaction points).
+
+    Parameters
+    ----------
+    eps : (n,) complex
+        Complex relative permittivity ``eps' - j eps''``; an infinite value is a perfect
+        conductor (``R_TE = -1``, ``R_TM = +1`` exactly).
+    thickness : (n,) float
+        Slab thickness, metres; 0 reflects as a half-space.
+    roughness : (n,) float
+        Scattering coefficient S in [0, 1] of the effective-roughness model: the specular
+        field keeps ``sqrt(1 - S^2)`` of the smooth-surface reflection.
+    """
+
+    eps: np.ndarray
+    thickness: np.ndarray
+    roughness: np.ndarray
+
+    def __post_init__(self) -> None:
+        eps = np.atleast_1d(np.asarray(self.eps, dtype=np.complex128))
+        thick = np.broadcast_to(np.asarray(self.thickness, dtype=np.float64), eps.shape).copy()
+        rough = np.broadcast_to(np.asarray(self.roughness, dtype=np.float64), eps.shape).copy()
+        if eps.ndim != 1:
+            raise ValueError(f"Surface.eps must be one-dimensional, got shape {eps.shape}")
+        if not np.all((rough >= 0.0) & (rough <= 1.0)):
+            raise ValueError("Surface.roughness must lie in [0, 1]")
+        object.__setattr__(self, "eps", eps)
+        object.__setattr__(self, "thickness", thick)
+        object.__setattr__(self, "roughness", rough)
+
+    def __len__(self) -> int:
+        return len(self.eps)
+
+    @classmethod
+    def of(cls, materials: Sequence[Material], frequency: float) -> Surface:
+        """One entry per material, at ``frequency`` (Hz), S from each material."""
+        return cls(
+            np.array([m.complex_permittivity(frequency) for m in materials], dtype=np.complex128),
+            np.array([m.thickness or 0.0 for m in materials], dtype=np.float64),
+            np.array([m.scattering_coefficient for m in materials], dtype=np.float64),
+        )
+
+    @classmethod
+    def perfect_conductor(cls, n: int = 1, roughness: float = 0.0) -> Surface:
+        """``n`` perfectly conducting half-spaces."""
+        return cls(np.full(n, complex(0.0, -np.inf)), np.zeros(n), np.full(n, float(roughness)))
+
+    def take(self, index: np.ndarray | int | slice) -> Surface:
+        """The entries at ``index`` (any numpy index; an int keeps one entry)."""
+        index = np.atleast_1d(np.arange(len(self))[index])
+        return Surface(self.eps[index], self.thickness[index], self.roughness[index])
+
+    def smooth_reflection(self, cos_theta: np.ndarray, wavelength: float) -> tuple[np.ndarray, np.ndarray]:
+        """TE and TM coefficients of the smooth surfaces (slab or half-space, no roughness factor).
+
+        Parameters
+        ----------
+        cos_theta : (n,) float
+            Cosine of the incidence angle from the normal, in [0, 1].
+        wavelength : float
+            Free-space wavelength, metres.
+
+        Returns
+        -------
+        r_te, r_tm : (n,) complex128
+        """
+        c = np.broadcast_to(np.asarray(cos_theta, dtype=np.float64), self.eps.shape)
+        r_te = np.full(c.shape, -1.0 + 0j)  # perfect conductors (infinite eps) keep these
+        r_tm = np.full(c.shape, 1.0 + 0j)
+        ok = np.isfinite(self.eps)
+        if np.any(ok):
+            r_te[ok], r_tm[ok] = reflection(self.eps[ok], self.thickness[ok], c[ok], wavelength)
+        return r_te, r_tm
+
+    def reflection(self, cos_theta: np.ndarray, wavelength: float) -> tuple[np.ndarray, np.ndarray]:
+        """Specular TE and TM coefficients (n,): :meth:`smooth_reflection` times ``sqrt(1 - S^2)``.
+
+        Same arguments as :meth:`smooth_reflection`; this is the coefficient of specular paths and
+        of the reflection terms inside the UTD coefficient.
+        """
+        r_te, r_tm = self.smooth_reflection(cos_theta, wavelength)
+        keep = np.sqrt(1.0 - self.roughness**2)
+        return r_te * keep, r_tm * keep
+
+
 def direction_angles(k: np.ndarray) -> np.ndarray:
     """(zenith, azimuth) in radians of unit vectors ``k`` (..., 3); returns (..., 2)."""
     theta = np.arccos(np.clip(k[..., 2], -1.0, 1.0))
@@ -144,6 +251,6 @@ def bounce_matrices(
     e_s /= norm[:, None]
     e_pi = np.cross(k_in, e_s)
     e_po = np.cross(k_out, e_s)
-    return r_te[:, None, None] * np.einsum("ni,nj->nij", e_s, e_s) + r_tm[:, None, None] * np.einsum(
-        "ni,nj->nij", e_po, e_pi
-    )
+    return (r_te[:, None, None] * e_s[:, :, None]) * e_s[:, None, :] + (
+        r_tm[:, None, None] * e_po[:, :, None]
+    ) * e_pi[:, None, :]

@@ -1,7 +1,9 @@
 """Mitsuba XML scenes as exported for Sionna RT.
 
 Reads ``<bsdf type="itu-radio-material">`` (with ``type`` and ``thickness``),
-``<bsdf type="radio-material">`` (permittivity and conductivity), the older
+``<bsdf type="radio-material">`` (permittivity and conductivity), on both the optional
+diffuse-scattering properties ``scattering_coefficient`` and ``xpd_coefficient`` (floats, as
+Sionna RT writes them), ``scattering_pattern`` (string) and ``alpha_r`` (integer), the older
 ``mat-itu_<name>`` ids, and ``ply`` / ``obj`` shapes with optional ``to_world``
 transforms. Coordinates are kept as given. Parsed with defusedxml.
 """
@@ -45,7 +47,30 @@ def _float(props: dict[str, str], keys: tuple[str, ...], where: str) -> float | 
     return None
 
 
+def _scattering(props: dict[str, str], where: str) -> dict:
+    """Sionna RT's diffuse-scattering properties of a radio-material bsdf, where present."""
+    alpha_r = None
+    if "alpha_r" in props:
+        try:
+            alpha_r = int(props["alpha_r"])
+        except ValueError:
+            raise MmwsimError(f"{where}: alpha_r={props['alpha_r']!r} is not an integer") from None
+    return {
+        "S": _float(props, ("scattering_coefficient",), where),
+        "xpd": _float(props, ("xpd_coefficient",), where),
+        "pattern": props.get("scattering_pattern"),
+        "alpha_r": alpha_r,
+    }
+
+
 def _material(elem, where: str) -> Material:
+    try:
+        return _radio_material(elem, where)
+    except MmwsimError as e:  # range errors of Material name the material, not the file
+        raise MmwsimError(str(e) if str(e).startswith(where) else f"{where}: {e}") from None
+
+
+def _radio_material(elem, where: str) -> Material:
     kind = elem.get("type", "")
     ident = elem.get("id", "") or ""
     props = _props(elem)
@@ -53,7 +78,7 @@ def _material(elem, where: str) -> Material:
     if kind == "itu-radio-material":
         if "type" not in props:
             raise MmwsimError(f"{where}: itu-radio-material {ident!r} has no 'type'")
-        return get_material(props["type"], thickness)
+        return get_material(props["type"], thickness).with_scattering(**_scattering(props, where))
     if kind == "radio-material":
         eps = _float(props, ("relative_permittivity", "eta_r"), where)
         sigma = _float(props, ("conductivity", "sigma"), where)
@@ -61,11 +86,11 @@ def _material(elem, where: str) -> Material:
             raise MmwsimError(
                 f"{where}: radio-material {ident!r} needs relative_permittivity and conductivity"
             )
-        return Material.custom(ident or "custom", eps, sigma, thickness)
+        mat = Material.custom(ident or "custom", eps, sigma, thickness)
+        return mat.with_scattering(**_scattering(props, where))
     nested = elem.find("bsdf")
     if kind == "twosided" and nested is not None and nested.get("type", "").endswith("radio-material"):
-        mat = _material(nested, where)
-        return mat
+        return _radio_material(nested, where)
     if re.match(r"^(mat-)?itu_", ident):
         return get_material(ident, thickness)
     raise MmwsimError(f"{where}: unknown material {ident or kind!r} (bsdf type {kind!r})")

@@ -9,6 +9,13 @@ Example::
     permittivity = 6.3
     conductivity = 0.2
     thickness = 0.01
+    scattering_coefficient = 0.2      # optional diffuse scattering: S, Kx, pattern, alpha_R
+    xpd_coefficient = 0.1
+    scattering_pattern = "directive"  # lambertian (default) | directive
+    alpha_r = 4
+
+    [materials.concrete]              # a built-in (ITU-R P.2040-3) name: only thickness and
+    scattering_coefficient = 0.3      # scattering keys, which every object using it gets
 
     [[objects]]
     name = "buildings"
@@ -38,7 +45,7 @@ from pydantic import Field
 
 from ...config import Int2, StrictModel, Vec2, Vec3, read_toml, validate
 from ...errors import MmwsimError
-from ...materials import Material, get_material
+from ...materials import Material, canonical_name, get_material
 from ..objects import ReceiverGrid, SceneObject, Transmitter
 from ..scene import Scene
 from .meshes import read_mesh, resolve_inside
@@ -47,9 +54,34 @@ __all__ = ["SceneFile", "load_toml"]
 
 
 class MaterialSpec(StrictModel):
-    permittivity: float = Field(ge=1.0)
-    conductivity: float = Field(ge=0.0)
+    """A user-defined material (permittivity and conductivity) or overrides of a built-in one."""
+
+    permittivity: float | None = Field(default=None, ge=1.0)
+    conductivity: float | None = Field(default=None, ge=0.0)
     thickness: float | None = Field(default=None, gt=0.0)
+    scattering_coefficient: float | None = None  # ranges checked by Material
+    xpd_coefficient: float | None = None
+    scattering_pattern: str | None = None
+    alpha_r: int | None = None
+
+
+def _spec_material(name: str, m: MaterialSpec) -> tuple[str, Material]:
+    """(key objects find it by, material) of one ``[materials.NAME]`` entry."""
+    scattering = {
+        "S": m.scattering_coefficient,
+        "xpd": m.xpd_coefficient,
+        "pattern": m.scattering_pattern,
+        "alpha_r": m.alpha_r,
+    }
+    if m.permittivity is None and m.conductivity is None:
+        base = canonical_name(name)
+        if base is None:
+            raise MmwsimError(f"{name!r} is not a built-in material: give 'permittivity' and 'conductivity'")
+        return base, get_material(base, m.thickness).with_scattering(**scattering)
+    if m.permittivity is None or m.conductivity is None:
+        raise MmwsimError("a user-defined material needs both 'permittivity' and 'conductivity'")
+    mat = Material.custom(name, m.permittivity, m.conductivity, m.thickness)
+    return name, mat.with_scattering(**scattering)
 
 
 class ObjectSpec(StrictModel):
@@ -102,14 +134,20 @@ def load_toml(path: str | Path, transmitter: tuple[float, float, float] | None =
     """
     path = Path(path)
     spec = validate(SceneFile, read_toml(path), str(path))
-    custom: dict[str, Material] = {}
+    custom: dict[str, Material] = {}  # user-defined, by their own name
+    overrides: dict[str, Material] = {}  # built-ins with thickness / scattering, by canonical name
     for name, m in spec.materials.items():
-        custom[name] = Material.custom(name, m.permittivity, m.conductivity, m.thickness)
+        try:
+            key, mat = _spec_material(name, m)
+        except MmwsimError as e:
+            raise MmwsimError(f"{path}: materials.{name}: {e}") from None
+        (custom if mat.source == "user-defined" else overrides)[key] = mat
     objects = []
     for i, o in enumerate(spec.objects):
         where = f"{path}: objects.{i} ({o.name})"
         try:
-            material = custom[o.material] if o.material in custom else get_material(o.material)
+            material = custom.get(o.material) or overrides.get(canonical_name(o.material) or "")
+            material = material or get_material(o.material)
         except MmwsimError as e:
             raise MmwsimError(f"{where}: {e}") from None
         if o.thickness is not None:

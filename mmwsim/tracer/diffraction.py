@@ -16,7 +16,7 @@ Candidates are found in three steps, all deterministic:
 
 Each (candidate, receiver) pair is then solved exactly: the transmitter's image S
 through A and the receiver's image T through B reversed fix the diffraction point in
-closed form (Keller's cone, :func:`keller_point`); the reflection points follow by
+closed form (Keller's cone, :func:`.utd.keller_point`); the reflection points follow by
 unfolding; the path is kept only if Q lies on the edge, both ends are in the wedge's
 exterior, every reflection lands on its reflector and no leg is blocked. The field is
 ``(lambda / 4 pi) B_after D B_before / sqrt(s s' (s + s'))`` with the UTD coefficient
@@ -34,9 +34,10 @@ from .paths import Interaction
 from .polarimetry import FaceMaterials, PathBatch, antenna_jones, reflection_chain, unit_legs
 from .reflectors import Reflectors
 from .specular import EPS, SpecularSolver, mirror_chain
+from .utd import diffraction_matrices, keller_point
 from .wedges import Wedges
 
-__all__ = ["DiffractionStage", "DiffractionCandidates", "keller_point", "CONE_STEP"]
+__all__ = ["DiffractionStage", "DiffractionCandidates", "CONE_STEP"]
 
 CONE_STEP = np.radians(1.0)
 """Angular step of the Keller-cone rays around the edge, radians."""
@@ -44,41 +45,6 @@ _EDGE_STEP_MAX = 2.0  # longest spacing of launch points along an edge, metres
 _EDGE_STEP_MIN = 0.1  # ... and shortest
 _SAFETY = 1.5  # cell-marking tolerance over the sampling error bound
 _POINT_BATCH = 2048  # launch points per batch of cone rays (a few hundred rays each)
-
-
-def keller_point(
-    source: np.ndarray, target: np.ndarray, origin: np.ndarray, edge: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The point of an edge line where the path source -> point -> target obeys Keller's law.
-
-    Rotating the target about the edge into the plane of the source and the edge makes
-    the path straight; the crossing is at ``x = (b s_z + a t_z) / (a + b)`` with
-    ``s_z, t_z`` the positions of source and target along the edge and ``a, b`` their
-    distances from it.
-
-    Parameters
-    ----------
-    source, target : (m, 3) float64
-        Metres.
-    origin, edge : (m, 3) float64
-        A point of each edge line and its unit direction.
-
-    Returns
-    -------
-    x : (m,) float64
-        Position of the diffraction point along the edge from ``origin``, metres.
-    dist : (m,) float64
-        Distances ``a, b`` of source and target from the edge line, stacked as (m, 2).
-    """
-    s = source - origin
-    t = target - origin
-    sz = np.einsum("ij,ij->i", s, edge)
-    tz = np.einsum("ij,ij->i", t, edge)
-    a = np.linalg.norm(s - sz[:, None] * edge, axis=1)
-    b = np.linalg.norm(t - tz[:, None] * edge, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        x = (b * sz + a * tz) / (a + b)
-    return x, np.column_stack([a, b])
 
 
 @dataclass
@@ -329,8 +295,8 @@ class DiffractionStage:
         s = src_imgs[:, -1] if a else np.broadcast_to(tx, (len(cand_p), 3))
         # Receiver's image through B reversed: the unfolded end of the path after Q.
         t = mirror_chain(refl, rx[rx_p], post[:, ::-1])[:, -1] if b else rx[rx_p]
-        x, ab = keller_point(s, t, w.origin[wid], w.edge[wid])
-        ok = (x >= 0.0) & (x <= w.length[wid]) & (ab[:, 0] > 1e-9) & (ab[:, 1] > 1e-9)
+        x, _ = keller_point(s, t, w.origin[wid], w.edge[wid])
+        ok = (x >= 0.0) & (x <= w.length[wid])
         q = w.point(wid, np.where(ok, x, 0.0))
         k_in = q - s
         k_out = t - q
@@ -338,6 +304,8 @@ class DiffractionStage:
         s_out = np.linalg.norm(k_out, axis=1)
         k_in /= np.maximum(s_in, 1e-300)[:, None]
         k_out /= np.maximum(s_out, 1e-300)[:, None]
+        # Rays along the edge have no Keller cone (UTD is singular there).
+        ok &= np.abs(np.einsum("ij,ij->i", k_in, w.edge[wid])) < 1.0 - 1e-12
         # Both ends in the exterior region 0 < phi < n pi.
         nphi = w.n[wid] * np.pi
         phi_in = w.angle(wid, -k_in)
@@ -389,8 +357,6 @@ class DiffractionStage:
         return PathBatch(rx_p, s_in + s_out, points, faces, types, jones, aod, aoa)
 
     def _coefficient(self, wid, k_in, k_out, s_in, s_out) -> np.ndarray:
-        from ._utd_stub import diffraction_matrices  # TODO: .utd once the physics branch lands
-
         w = self.wedges
         return diffraction_matrices(
             k_in,

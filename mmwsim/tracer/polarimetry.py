@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fresnel import bounce_matrices, direction_angles, reflection, spherical_basis
+from ..constants import SPEED_OF_LIGHT
+from .fresnel import Surface, bounce_matrices, direction_angles, spherical_basis
 
 __all__ = ["PathBatch", "FaceMaterials", "unit_legs", "reflection_chain", "antenna_jones"]
 
@@ -62,37 +63,33 @@ class FaceMaterials:
 
     Attributes
     ----------
-    eps : (n_faces,) complex128
-        Complex relative permittivity at the carrier.
-    thickness : (n_faces,) float64
-        Slab thickness, metres (0: half-space).
+    objects : Surface
+        One entry per scene object (its material at the carrier).
+    owner : (n_faces,) int
+        Object of each triangle.
     wavelength : float
         Metres.
     """
 
-    eps: np.ndarray
-    thickness: np.ndarray
+    objects: Surface
+    owner: np.ndarray
     wavelength: float
 
     @classmethod
     def of(cls, scene) -> FaceMaterials:
-        f = scene.frequency
-        eps = np.array([o.material.complex_permittivity(f) for o in scene.objects], complex)
-        thick = np.array([o.material.thickness or 0.0 for o in scene.objects], dtype=np.float64)
-        owner = scene.face_object
-        return cls(
-            eps[owner] if len(eps) else np.zeros(0, complex),
-            thick[owner] if len(thick) else np.zeros(0),
-            299_792_458.0 / f,
-        )
+        surfaces = Surface.of([o.material for o in scene.objects], scene.frequency)
+        return cls(surfaces, np.asarray(scene.face_object, np.int64), SPEED_OF_LIGHT / scene.frequency)
 
-    def surface(self, faces: np.ndarray):
-        """Reflection properties of triangles ``faces`` (m,) (TODO: fresnel.Surface once it lands)."""
-        return (self.eps[faces], self.thickness[faces])
+    def surface(self, faces: np.ndarray) -> Surface:
+        """The surfaces of triangles ``faces`` (m,), one entry each."""
+        return self.objects.take(self.owner[np.asarray(faces, np.int64)])
 
     def coefficients(self, faces: np.ndarray, cos_theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """TE and TM reflection coefficients (m,) of triangles ``faces`` at incidence cosines (m,)."""
-        return reflection(self.eps[faces], self.thickness[faces], np.minimum(cos_theta, 1.0), self.wavelength)
+        """Specular TE and TM coefficients (m,) of triangles ``faces`` at incidence cosines (m,).
+
+        :meth:`Surface.reflection`: slab or half-space, times ``sqrt(1 - S^2)`` on rough surfaces.
+        """
+        return self.surface(faces).reflection(np.minimum(cos_theta, 1.0), self.wavelength)
 
 
 def unit_legs(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

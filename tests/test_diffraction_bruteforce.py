@@ -138,7 +138,7 @@ def _one(out, tri, normal, offset, face_plane, w, wi, ri, tx, rx, pre, post):
 
 def traced(scene: Scene, tx: np.ndarray, rx: np.ndarray, kmax: int) -> dict:
     _, _, face_plane = _planes(scene)
-    paths = Tracer(scene, tx, kmax, RAYS).trace(rx)
+    paths = Tracer(scene, tx, kmax, RAYS, min_gain_db=None).trace(rx)
     out = {}
     for i in np.flatnonzero(paths.kind() == 2):
         k = paths.order[i]

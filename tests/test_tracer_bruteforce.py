@@ -114,7 +114,7 @@ def brute_force(scene: Scene, tx: np.ndarray, rx: np.ndarray, kmax: int) -> dict
 
 def traced(scene: Scene, tx: np.ndarray, rx: np.ndarray, kmax: int) -> dict:
     _, _, face_plane = _planes(scene)
-    paths = Tracer(scene, tx, kmax, RAYS, diffraction=False).trace(rx)
+    paths = Tracer(scene, tx, kmax, RAYS, diffraction=False, min_gain_db=None).trace(rx)
     out = {}
     for i in range(paths.n_paths):
         f = paths.faces[i, : paths.order[i]]
@@ -163,7 +163,7 @@ def test_street_canyon_path_counts():
     counts = np.bincount([k[0] for k in ref], minlength=2)
     # Two walls and a ground: 1 + 3 + 4 + 4 paths of orders 0..3 reach each of these receivers.
     assert counts.tolist() == [12, 12]
-    got = Tracer(scene, None, 3, RAYS, diffraction=False).trace(rx)
+    got = Tracer(scene, None, 3, RAYS, diffraction=False, min_gain_db=None).trace(rx)
     assert got.count().tolist() == [12, 12]
     assert np.bincount(got.order, minlength=4).tolist() == [2, 6, 8, 8]
 

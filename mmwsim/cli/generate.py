@@ -14,7 +14,19 @@ def register(sub) -> None:
     p.add_argument("--tx", help="transmitter position X,Y,Z in metres (default: the scene's)")
     p.add_argument("--out", help="output store directory (default: <scene name>.zarr)")
     p.add_argument("--spacing", type=float, help="receiver spacing in metres (default: the scene's grid)")
-    p.add_argument("--max-reflections", type=int, default=3, help="reflections per path (default 3)")
+    p.add_argument(
+        "--max-reflections",
+        type=int,
+        default=3,
+        help="interactions per path: reflections, the diffraction and diffuse scattering together (default 3)",
+    )
+    p.add_argument("--no-diffraction", action="store_true", help="trace line of sight and reflections only")
+    p.add_argument(
+        "--diffuse",
+        type=float,
+        metavar="S",
+        help="diffuse scattering: set the scattering coefficient S (0..1) of every material for this run",
+    )
     p.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="continue an unfinished run of the same config")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run tiles on this Dask scheduler")
@@ -52,6 +64,8 @@ def _generate(args) -> int:
         progress=not args.quiet,
         tile_size=args.tile_size,
         transmitter=parse_vector(args.tx, 3, "--tx") if args.tx else None,
+        diffraction=not args.no_diffraction,
+        diffuse=args.diffuse,
     )
     ds = Dataset.open(path)
     print(f"wrote {path}: {ds!r} in {time.perf_counter() - t0:.1f} s")

@@ -1,4 +1,4 @@
-"""``mmwsim trace``: exact specular paths from a transmitter to receivers."""
+"""``mmwsim trace``: exact paths (line of sight, reflections, diffraction) from a transmitter to receivers."""
 
 from __future__ import annotations
 
@@ -18,14 +18,32 @@ _TABLE_LIMIT = 20  # receivers printed in full; more get a summary
 
 
 def register(sub) -> None:
-    p = sub.add_parser("trace", help="trace the specular paths from a transmitter to receivers")
+    p = sub.add_parser(
+        "trace",
+        help="trace the paths from a transmitter to receivers",
+        description="Every path of line of sight, specular reflections and one edge diffraction (with "
+        "reflections before and after it) up to --max-reflections interactions, solved exactly.",
+    )
     p.add_argument("scene", help="catalogue name (default, manhattan:seed=3, ...) or a .toml/.xml/mesh file")
     p.add_argument("--tx", help="transmitter position X,Y,Z in metres (default: the scene's)")
     rx = p.add_mutually_exclusive_group(required=True)
     rx.add_argument("--rx", action="append", help="receiver position X,Y,Z in metres (repeatable)")
     rx.add_argument("--rx-file", help="CSV file of receivers with the header x,y,z")
-    p.add_argument("--max-reflections", type=int, default=3, help="highest reflection order (default 3)")
+    p.add_argument(
+        "--max-reflections",
+        type=int,
+        default=3,
+        help="interactions per path: reflections and the diffraction together (default 3)",
+    )
+    p.add_argument("--no-diffraction", action="store_true", help="line of sight and reflections only")
     p.add_argument("--rays", type=int, default=None, help="rays shot for the candidate search")
+    p.add_argument(
+        "--min-gain",
+        type=float,
+        default=-180.0,
+        metavar="DB",
+        help="drop paths weaker than this for every polarisation pair, dB (default -180)",
+    )
     p.add_argument("--json", help="write the paths as JSON to this file")
     p.add_argument("--rrd", help="write a Rerun recording of the paths to this .rrd file")
     # Let "--rx -20,-6,1.5" through: argparse only treats plain numbers as negatives by default.
@@ -94,10 +112,19 @@ def _run(args) -> int:
             f"receiver {i + 1} at ({', '.join(f'{v:g}' for v in rx[i])}) is inside a building"
             + (f" ({int(outside.sum())} receivers are)" if outside.sum() > 1 else "")
         )
-    n_rays = args.rays or DEFAULT_RAYS
+    n_rays = DEFAULT_RAYS if args.rays is None else args.rays
     if n_rays < 1:
         raise MmwsimError(f"--rays must be positive, got {n_rays}")
-    tracer = Tracer(scene, tx, args.max_reflections, n_rays)
+    if not math.isfinite(args.min_gain):
+        raise MmwsimError(f"--min-gain must be a finite number of dB, got {args.min_gain}")
+    tracer = Tracer(
+        scene,
+        tx,
+        args.max_reflections,
+        n_rays,
+        diffraction=not args.no_diffraction,
+        min_gain_db=args.min_gain,
+    )
     paths = tracer.trace(rx)
     names = [o.name for o in scene.objects]
     print(_report(paths, names))
@@ -113,6 +140,8 @@ def _run(args) -> int:
                 "scene": scene.source or scene.name,
                 "tx": tx.tolist(),
                 "max_reflections": args.max_reflections,
+                "diffraction": not args.no_diffraction,
+                "min_gain_db": args.min_gain,
             },
         ) as rec:
             log_scene(rec, scene)
@@ -123,32 +152,43 @@ def _run(args) -> int:
     return 0
 
 
-def _path_records(paths, names: list[str]) -> list[list[dict]]:
-    gain = paths.gain_db("V", "V")
-    aod, aoa = np.degrees(paths.aod), np.degrees(paths.aoa)
-    per_rx: list[list[dict]] = [[] for _ in range(paths.n_rx)]
-    for i in range(paths.n_paths):
-        k = int(paths.order[i])
-        per_rx[int(paths.rx_index[i])].append(
-            {
-                "delay_s": float(paths.delay[i]),
-                "gain_db": float(gain[i]) if np.isfinite(gain[i]) else None,
-                "aod": [float(aod[i, 0]), float(aod[i, 1])],
-                "aoa": [float(aoa[i, 0]), float(aoa[i, 1])],
-                "interactions": [names[o] for o in paths.objects[i, :k]],
-            }
-        )
-    return per_rx
+_TYPE_NAMES = ("none", "reflection", "diffraction", "diffuse")
 
 
 def _write_json(path: Path, paths, names: list[str]) -> None:
-    doc = {
-        "receivers": [
-            {"position": [float(v) for v in paths.rx[j]], "paths": recs}
-            for j, recs in enumerate(_path_records(paths, names))
-        ]
-    }
-    write_text_atomic(path, json.dumps(doc, indent=1))
+    """Paths per receiver as JSON, built as text column by column (no object per path)."""
+    gain = paths.gain_db("V", "V")
+    k = paths.order.astype(np.int64)
+    cols = np.arange(paths.faces.shape[1])
+    real = cols[None, :] < k[:, None]
+    quoted = np.array([json.dumps(n) for n in names] + ['""'], dtype=object)
+    kinds = np.array([f'"{t}"' for t in _TYPE_NAMES], dtype=object)
+    obj = np.where(real, paths.objects, len(names))
+    inter = _join_rows(quoted[obj], real)
+    types = _join_rows(kinds[paths.types.astype(np.int64)], real)
+    aod, aoa = np.degrees(paths.aod).tolist(), np.degrees(paths.aoa).tolist()
+    gains = [repr(g) if math.isfinite(g) else "null" for g in gain.tolist()]
+    records = [
+        f'{{"delay_s":{d!r},"gain_db":{g},"aod":[{a[0]!r},{a[1]!r}],"aoa":[{b[0]!r},{b[1]!r}],'
+        f'"interactions":[{i}],"interaction_types":[{t}]}}'
+        for d, g, a, b, i, t in zip(paths.delay.tolist(), gains, aod, aoa, inter, types, strict=True)
+    ]
+    off = paths.offsets().tolist()
+    rx = paths.rx.tolist()
+    body = ",\n".join(
+        f'{{"position":[{p[0]!r},{p[1]!r},{p[2]!r}],"paths":[{",".join(records[a:b])}]}}'
+        for p, a, b in zip(rx, off[:-1], off[1:], strict=True)
+    )
+    write_text_atomic(path, '{"receivers":[\n' + body + "\n]}\n")
+
+
+def _join_rows(cells: np.ndarray, real: np.ndarray) -> list[str]:
+    """Comma-joined strings of the first ``real`` cells of each row (m, K) of an object array."""
+    out = np.full(len(cells), "", dtype=object)
+    for j in range(cells.shape[1]):
+        sep = np.where(j > 0, ",", "")
+        out = np.where(real[:, j], out + sep + cells[:, j], out)
+    return out.tolist()
 
 
 def _report(paths, names: list[str]) -> str:
@@ -167,7 +207,11 @@ def _report(paths, names: list[str]) -> str:
                 )
             for i in range(off[j], off[j + 1]):
                 k = int(paths.order[i])
-                inter = " > ".join(names[o] for o in paths.objects[i, :k]) or "line of sight"
+                inter = " > ".join(
+                    names[o] + (" (diffraction)" if t == 2 else " (diffuse)" if t == 3 else "")
+                    for o, t in zip(paths.objects[i, :k], paths.types[i, :k], strict=True)
+                )
+                inter = inter or "line of sight"
                 aod, aoa = np.degrees(paths.aod[i]), np.degrees(paths.aoa[i])
                 lines.append(
                     f"  {1e9 * paths.delay[i]:10.3f} {gain[i]:8.2f} {aod[0]:6.1f},{aod[1]:6.1f}"
@@ -175,9 +219,19 @@ def _report(paths, names: list[str]) -> str:
                 )
     else:
         by_order = np.bincount(paths.order, minlength=paths.max_reflections + 1)
+        by_kind = np.bincount(paths.kind(), minlength=4)
         lines.append(
             f"  paths per receiver: mean {counts.mean():.2f}, max {counts.max()}; "
             f"receivers without a path: {int((counts == 0).sum())}"
         )
-        lines.append("  by reflection order: " + ", ".join(f"{k}: {n}" for k, n in enumerate(by_order)))
+        lines.append("  by interactions: " + ", ".join(f"{k}: {n}" for k, n in enumerate(by_order)))
+        lines.append(
+            "  by kind: "
+            + ", ".join(
+                f"{name} {n}"
+                for name, n in zip(
+                    ("line of sight", "reflected", "diffracted", "diffuse"), by_kind, strict=True
+                )
+            )
+        )
     return "\n".join(lines)

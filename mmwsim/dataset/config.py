@@ -33,7 +33,10 @@ class CodebookConfig(StrictModel):
 class GenerateConfig(StrictModel):
     """Everything that determines the bytes of a data set.
 
-    Lengths in metres, powers in dBm / dBi, frequencies in Hz.
+    Lengths in metres, powers in dBm / dBi, frequencies in Hz. ``max_reflections`` bounds
+    all interactions of a path (reflections, the diffraction, the diffuse scattering);
+    ``diffuse`` is a scattering coefficient S set on every material for this run (None:
+    the scene's own); paths weaker than ``min_path_gain_db`` are dropped (None: none are).
     """
 
     scene: str
@@ -47,6 +50,9 @@ class GenerateConfig(StrictModel):
     grid_height: float
     max_reflections: int = 3
     n_rays: int
+    diffraction: bool = True
+    diffuse: float | None = None
+    min_path_gain_db: float | None = -180.0
     codebook: CodebookConfig = CodebookConfig()
     rx_gain_dbi: float = RX_GAIN_DBI
     sample_rate: float = SAMPLE_RATE
@@ -125,6 +131,9 @@ def resolve_config(
     tile_size: int = DEFAULT_TILE,
     path_chunk: int = DEFAULT_PATH_CHUNK,
     band_limited: bool = False,
+    diffraction: bool = True,
+    diffuse: float | None = None,
+    min_path_gain_db: float | None = -180.0,
 ) -> GenerateConfig:
     """The full configuration of a data set of ``scene`` (loaded from ``scene_spec``)."""
     from ..tracer import DEFAULT_RAYS
@@ -138,6 +147,10 @@ def resolve_config(
         grid = grid.with_spacing(float(spacing))
     if int(max_reflections) != max_reflections or not 0 <= max_reflections <= 6:
         raise MmwsimError(f"--max-reflections must be an integer from 0 to 6, got {max_reflections!r}")
+    if diffuse is not None and not (np.isfinite(diffuse) and 0.0 <= diffuse <= 1.0):
+        raise MmwsimError(f"--diffuse must be a scattering coefficient from 0 to 1, got {diffuse!r}")
+    if min_path_gain_db is not None and not np.isfinite(min_path_gain_db):
+        raise MmwsimError(f"the path gain floor must be a finite number of dB, got {min_path_gain_db!r}")
     if tile_size < 1 or path_chunk < 1:
         raise MmwsimError("tile size and path chunk must be positive")
     tile_size = int(tile_size)
@@ -155,6 +168,9 @@ def resolve_config(
         grid_height=float(grid.height),
         max_reflections=int(max_reflections),
         n_rays=int(DEFAULT_RAYS if n_rays is None else n_rays),
+        diffraction=bool(diffraction),
+        diffuse=None if diffuse is None else float(diffuse),
+        min_path_gain_db=None if min_path_gain_db is None else float(min_path_gain_db),
         codebook=codebook or CodebookConfig(),
         band_limited=bool(band_limited),
         tile_size=tile_size,

@@ -35,6 +35,9 @@ def generate(
     tile_size: int = DEFAULT_TILE,
     path_chunk: int = DEFAULT_PATH_CHUNK,
     transmitter: tuple[float, float, float] | None = None,
+    diffraction: bool = True,
+    diffuse: float | None = None,
+    min_path_gain_db: float | None = -180.0,
 ) -> Path:
     """Generate the data set of ``scene`` into the directory ``out``.
 
@@ -47,6 +50,7 @@ def generate(
     spacing : float, optional
         Receiver spacing, metres (default: the scene's grid).
     max_reflections : int
+        Interactions per path: reflections, the diffraction and diffuse scattering together.
     workers : int
         Local processes tracing tiles (1: this process).
     resume : bool
@@ -59,6 +63,13 @@ def generate(
         Show a tqdm progress bar.
     transmitter : (3,) float, optional
         Transmitter position, metres, instead of the scene's (needed for scenes without one).
+    diffraction : bool
+        Trace singly diffracted paths (with reflections before and after).
+    diffuse : float, optional
+        Scattering coefficient S set on every material for this run (0..1); None keeps the
+        scene's own materials.
+    min_path_gain_db : float or None
+        Drop paths weaker than this for every pair of polarisations, dB.
 
     Returns
     -------
@@ -83,6 +94,9 @@ def generate(
         tile_size=tile_size,
         path_chunk=path_chunk,
         band_limited=band_limited,
+        diffraction=diffraction,
+        diffuse=diffuse,
+        min_path_gain_db=min_path_gain_db,
     )
     writer = StoreWriter(out, cfg, _n_beams(cfg), resume)
     if writer.complete:

@@ -13,10 +13,11 @@ Layout (all arrays zstd-compressed)::
     grid/paths/delay       (n_slots,) float64 s (NaN in unused slots)
     grid/paths/jones       (n_slots, 2, 2) complex64 (Paths' convention, includes lambda / 4 pi L)
     grid/paths/aod, aoa    (n_slots, 2) float32 (zenith, azimuth), radians
-    grid/paths/order       (n_slots,) int8 reflections
+    grid/paths/order       (n_slots,) int8 interactions (reflections, diffraction, diffuse)
     grid/paths/objects     (n_slots, K) int32 scene object per interaction, -1 pads
     grid/paths/faces       (n_slots, K) int32 triangle per interaction, -1 pads
     grid/paths/points      (n_slots, K, 3) float32 interaction points, metres
+    grid/paths/types       (n_slots, K) int8 interaction kinds (mmwsim.tracer.Interaction), 0 pads
     trajectories/<split>   added later by ``mmwsim trajectories`` (mmwsim.trajectories.store), as one
                            atomic rename; not part of the content hash, which covers the generation
 
@@ -45,11 +46,11 @@ from .config import GenerateConfig
 __all__ = ["FORMAT", "Dataset", "StoreWriter", "nearest_index", "partial_path"]
 
 FORMAT = "mmwsim-dataset"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MARKER = ".mmwsim-progress.json"
 _ZSTD = ZstdCodec(level=3, checksum=False)
 
-PATH_FIELDS = ("delay", "jones", "aod", "aoa", "order", "objects", "faces", "points")
+PATH_FIELDS = ("delay", "jones", "aod", "aoa", "order", "objects", "faces", "points", "types")
 
 
 def partial_path(out: Path) -> Path:
@@ -67,6 +68,7 @@ def _path_specs(cfg: GenerateConfig) -> dict[str, tuple[tuple[int, ...], str, ob
         "objects": ((k,), "int32", -1),
         "faces": ((k,), "int32", -1),
         "points": ((k, 3), "float32", np.nan),
+        "types": ((k,), "int8", 0),
     }
 
 
@@ -373,7 +375,9 @@ class Dataset:
         sel = np.concatenate(
             [np.arange(s, s + c) for s, c in zip(start, count, strict=True)] + [np.zeros(0, int)]
         )
-        cols = {name: np.asarray(p[name].get_orthogonal_selection((sel,))) for name in PATH_FIELDS}
+        # Stores of format 1 (before diffraction) hold no interaction kinds: all are reflections.
+        names = [n for n in PATH_FIELDS if n in p]
+        cols = {name: np.asarray(p[name].get_orthogonal_selection((sel,))) for name in names}
         from ..constants import SPEED_OF_LIGHT
 
         return Paths(
@@ -389,6 +393,7 @@ class Dataset:
             faces=cols["faces"].astype(np.int64),
             objects=cols["objects"],
             points=cols["points"].astype(np.float64),
+            types=cols.get("types"),
         )
 
     # ------------------------------------------------------------------ scene and trajectories

@@ -36,7 +36,7 @@ class TileResult:
     paths : dict of str to ndarray
         Flat path arrays in receiver order: delay (m,) float64 s, jones (m, 2, 2) complex64,
         aod / aoa (m, 2) float32 rad, order (m,) int8, objects / faces (m, K) int32,
-        points (m, K, 3) float32 m, with K = max(max_reflections, 1).
+        points (m, K, 3) float32 m, types (m, K) int8, with K = max(max_reflections, 1).
     """
 
     tile: int
@@ -75,8 +75,17 @@ def _context(cfg: GenerateConfig, config_json: str):
         from ..tracer import Tracer
 
         scene = cfg.load_scene()
+        if cfg.diffuse is not None:
+            scene = scene.with_scattering(cfg.diffuse)
         grid = ReceiverGrid(cfg.grid_origin, cfg.grid_spacing, cfg.grid_shape, cfg.grid_height)
-        tracer = Tracer(scene, np.asarray(cfg.transmitter), cfg.max_reflections, cfg.n_rays)
+        tracer = Tracer(
+            scene,
+            np.asarray(cfg.transmitter),
+            cfg.max_reflections,
+            cfg.n_rays,
+            diffraction=cfg.diffraction,
+            min_gain_db=cfg.min_path_gain_db,
+        )
         ctx = (scene, grid, tracer, make_codebook_from(cfg), receive_pattern(cfg.rx_gain_dbi))
         _CONTEXT.clear()  # one configuration per process at a time
         _CONTEXT[key] = ctx
@@ -113,6 +122,7 @@ def compute_tile(config_json: str, tile: int) -> TileResult:
         "objects": paths.objects.astype(np.int32),
         "faces": paths.faces.astype(np.int32),
         "points": paths.points.astype(np.float32),
+        "types": paths.types.astype(np.int8),
     }
     count = np.bincount(paths.rx_index, minlength=n).astype(np.int32)
     return TileResult(tile, outdoors, valid, pdp.astype(np.float16), count, arrays)
@@ -133,6 +143,7 @@ def _empty_paths(cfg: GenerateConfig, rx: np.ndarray) -> Paths:
         faces=np.full((0, k), -1, np.int64),
         objects=np.full((0, k), -1, np.int32),
         points=np.full((0, k, 3), np.nan),
+        types=np.zeros((0, k), np.int8),
     )
 
 
@@ -160,4 +171,5 @@ def _widen(p: Paths, rx: np.ndarray, rx_index: np.ndarray, k: int) -> Paths:
         faces=pad(p.faces, -1),
         objects=pad(p.objects, -1),
         points=pad(p.points, np.nan),
+        types=pad(p.types, 0),
     )

@@ -264,6 +264,21 @@ class Scene:
             raise MmwsimError(f"transmitter at {_fmt(p)} is inside a building")
         return p
 
+    def with_scattering(self, coefficient: float) -> Scene:
+        """The same scene with the diffuse scattering coefficient S of every material set to ``coefficient``."""
+        objects = [
+            SceneObject(o.name, o.mesh, o.material.with_scattering(coefficient), o.kind) for o in self.objects
+        ]
+        return Scene(
+            objects,
+            self.transmitter,
+            self.receivers,
+            self.frequency,
+            self.name,
+            self.source,
+            None if self._bounds is None else self._bounds.copy(),
+        )
+
     # ------------------------------------------------------------------ export
     def merged_mesh(self) -> trimesh.Trimesh:
         """All objects as one mesh, faces coloured by material."""

@@ -4,13 +4,13 @@ Every candidate (a reflector sequence, or a diffraction sequence) is represented
 the legs of the rays that followed it. A receiver lies within about ``gap`` of one
 of those legs if the candidate can reach it, where ``gap`` grows with the distance
 travelled (rays spread apart). Legs are clipped to the receivers' box widened by
-the gap, walked in half-cell steps, and every cell within the gap of a step is
-marked for the leg's candidate. The result is a sparse (cell -> candidates) table
+the gap, and every cell that the leg's capsule of radius ``gap`` overlaps (in plan)
+is marked for the leg's candidate. The result is a sparse (cell -> candidates) table
 from which (candidate, receiver) pairs are drawn for the exact solve.
 
-The marking runs in a compiled kernel: legs are counting-sorted by candidate, and
-a stamp per cell (the last candidate that marked it) removes duplicates without
-hashing.
+The marking runs in a compiled kernel: legs are counting-sorted by candidate, each
+leg's capsule is rasterised column by column, and a stamp per cell (the last
+candidate that marked it) removes duplicates without hashing.
 """
 
 from __future__ import annotations
@@ -219,29 +219,34 @@ def _counting_order(cand, n_cand):  # pragma: no cover - compiled
 def _mark(
     order, cand, n_cand, start, direc, length, gap0, slope, x0, y0, c, nx, ny, z0, z1
 ):  # pragma: no cover
+    """Keys ``cell * n_cand + cand`` of the cells each leg's capsule (radius gap) overlaps, once each.
+
+    Each leg is clipped to the receivers' box widened by its largest gap, then rasterised
+    column by column along its major horizontal axis: in every column of cells, the cells
+    within the gap of the leg's stretch over that column are marked.
+    """
     stamp = np.full(nx * ny, -1, np.int64)
     out = np.empty(1 << 16, np.int64)
     n_out = 0
     x1 = x0 + nx * c
     y1 = y0 + ny * c
-    step = c / 2.0
     lo_b = (x0, y0, z0)
     hi_b = (x1, y1, z1)
     for ii in range(len(order)):
         i = order[ii]
         k = cand[i]
-        sx, sy, sz = start[i, 0], start[i, 1], start[i, 2]
-        dx, dy, dz = direc[i, 0], direc[i, 1], direc[i, 2]
+        s3 = (float(start[i, 0]), float(start[i, 1]), float(start[i, 2]))
+        d3 = (float(direc[i, 0]), float(direc[i, 1]), float(direc[i, 2]))
         # Farthest the leg can travel inside the box: bounds the gap of endless legs.
-        ex = max(abs(sx - x0), abs(sx - x1))
-        ey = max(abs(sy - y0), abs(sy - y1))
-        ez = max(abs(sz - z0), abs(sz - z1))
-        far = min(length[i], np.sqrt(ex * ex + ey * ey + ez * ez) + 1.0)
-        gmax = gap0[i] + slope[i] * far
+        ex = max(abs(s3[0] - x0), abs(s3[0] - x1))
+        ey = max(abs(s3[1] - y0), abs(s3[1] - y1))
+        ez = max(abs(s3[2] - z0), abs(s3[2] - z1))
+        far = min(float(length[i]), np.sqrt(ex * ex + ey * ey + ez * ez) + 1.0)
+        g_a = float(gap0[i])
+        g_s = float(slope[i])
+        gmax = g_a + g_s * far
         lo = 0.0
         hi = far
-        s3 = (sx, sy, sz)
-        d3 = (dx, dy, dz)
         for a in range(3):
             sa = s3[a]
             da = d3[a]
@@ -259,24 +264,48 @@ def _mark(
             hi = min(hi, tb)
         if hi < lo:
             continue
-        n_samp = int(np.floor((hi - lo) / step)) + 2
-        for j in range(n_samp):
-            t = min(lo + j * step, hi)
-            px = sx + t * dx
-            py = sy + t * dy
-            g = gap0[i] + slope[i] * t
-            r = int(np.ceil((g + step / 2.0) / c))
-            ci = int(np.floor((px - x0) / c))
-            cj = int(np.floor((py - y0) / c))
-            for a in range(max(ci - r, 0), min(ci + r, nx - 1) + 1):
-                for b in range(max(cj - r, 0), min(cj + r, ny - 1) + 1):
-                    cell = a + nx * b
-                    if stamp[cell] != k:
-                        stamp[cell] = k
-                        if n_out == len(out):
-                            grown = np.empty(2 * len(out), np.int64)
-                            grown[:n_out] = out[:n_out]
-                            out = grown
-                        out[n_out] = cell * n_cand + k
-                        n_out += 1
+        # Major axis u (larger horizontal direction component), minor axis v.
+        if abs(d3[0]) >= abs(d3[1]):
+            su, sv, du, dv, ou, ov, nu, nv, swap = s3[0], s3[1], d3[0], d3[1], x0, y0, nx, ny, False
+        else:
+            su, sv, du, dv, ou, ov, nu, nv, swap = s3[1], s3[0], d3[1], d3[0], y0, x0, ny, nx, True
+        ua = su + lo * du
+        ub = su + hi * du
+        g_hi = g_a + g_s * hi
+        i0 = max(int(np.floor((min(ua, ub) - g_hi - ou) / c)), 0)
+        i1 = min(int(np.floor((max(ua, ub) + g_hi - ou) / c)), nu - 1)
+        for col in range(i0, i1 + 1):
+            ca = ou + col * c - g_hi
+            cb = ou + (col + 1) * c + g_hi
+            # Parameter range of the leg over this column (widened by the gap).
+            if abs(du) > 1e-12:
+                ta = (ca - su) / du
+                tb = (cb - su) / du
+                if ta > tb:
+                    ta, tb = tb, ta
+                ta = max(ta, lo)
+                tb = min(tb, hi)
+            else:
+                ta = lo
+                tb = hi
+            if tb < ta:
+                continue
+            g = g_a + g_s * tb
+            va = sv + ta * dv
+            vb = sv + tb * dv
+            j0 = max(int(np.floor((min(va, vb) - g - ov) / c)), 0)
+            j1 = min(int(np.floor((max(va, vb) + g - ov) / c)), nv - 1)
+            for row in range(j0, j1 + 1):
+                if swap:
+                    cell = row + nx * col
+                else:
+                    cell = col + nx * row
+                if stamp[cell] != k:
+                    stamp[cell] = k
+                    if n_out == len(out):
+                        grown = np.empty(2 * len(out), np.int64)
+                        grown[:n_out] = out[:n_out]
+                        out = grown
+                    out[n_out] = cell * n_cand + k
+                    n_out += 1
     return out[:n_out].copy()

@@ -15,7 +15,7 @@ import numpy as np
 from ..constants import SPEED_OF_LIGHT
 from .fresnel import Surface, bounce_matrices, direction_angles, spherical_basis
 
-__all__ = ["PathBatch", "FaceMaterials", "unit_legs", "reflection_chain", "antenna_jones"]
+__all__ = ["PathBatch", "FaceMaterials", "spectral_norm", "unit_legs", "reflection_chain", "antenna_jones"]
 
 
 @dataclass
@@ -56,6 +56,10 @@ class PathBatch:
     def __len__(self) -> int:
         return int(len(self.rx))
 
+    def select(self, mask: np.ndarray) -> PathBatch:
+        """The paths where ``mask`` (m,) is true."""
+        return PathBatch(*(getattr(self, f)[mask] for f in PathBatch.__dataclass_fields__))
+
 
 @dataclass(frozen=True)
 class FaceMaterials:
@@ -90,6 +94,14 @@ class FaceMaterials:
         :meth:`Surface.reflection`: slab or half-space, times ``sqrt(1 - S^2)`` on rough surfaces.
         """
         return self.surface(faces).reflection(np.minimum(cos_theta, 1.0), self.wavelength)
+
+
+def spectral_norm(jones: np.ndarray) -> np.ndarray:
+    """(m,) largest singular value of 2x2 matrices (m, 2, 2): the path's amplitude for the best
+    pair of transmit and receive polarisations."""
+    fro2 = np.sum(np.abs(jones) ** 2, axis=(1, 2))
+    det = np.abs(jones[:, 0, 0] * jones[:, 1, 1] - jones[:, 0, 1] * jones[:, 1, 0])
+    return np.sqrt(0.5 * (fro2 + np.sqrt(np.maximum(fro2**2 - 4.0 * det**2, 0.0))))
 
 
 def unit_legs(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

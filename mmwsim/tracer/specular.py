@@ -105,7 +105,7 @@ class SpecularSolver:
             den = np.einsum("ij,ij->i", n, img - nxt)
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = (refl.offset[r] - np.einsum("ij,ij->i", n, nxt)) / den
-            p = nxt + t[:, None] * (img - nxt)
+                p = nxt + t[:, None] * (img - nxt)
             ok = (t > 1e-12) & (t < 1.0 - 1e-12)
             ok &= np.all((p >= refl.lo[r] - _BOX_TOL) & (p <= refl.hi[r] + _BOX_TOL), axis=1)
             alive, nxt = alive[ok], p[ok]

@@ -23,16 +23,19 @@ from ..scene import Scene
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .diffraction import CONE_STEP, DiffractionStage
 from .paths import Paths
-from .polarimetry import FaceMaterials, PathBatch
+from .polarimetry import FaceMaterials, PathBatch, spectral_norm
 from .reflectors import Reflectors, group_reflectors
 from .shooting import Shot, shoot
 from .specular import SpecularSolver, mirror_chain
 from .wedges import Wedges, find_wedges
 
-__all__ = ["Tracer", "trace", "DEFAULT_RAYS"]
+__all__ = ["Tracer", "trace", "DEFAULT_RAYS", "MIN_GAIN_DB"]
 
 DEFAULT_RAYS = 4_000_000
 """Rays launched from the transmitter by default (mean spacing 1.8 mrad)."""
+MIN_GAIN_DB = -180.0
+"""Paths weaker than this (for the best pair of polarisations) are dropped by default, dB: the
+floor of the reference data set (-150 dBm received at 30 dBm, 0 dBi)."""
 
 # (candidate, receiver) pairs solved per batch: bounds the temporaries (about 1 kB per pair).
 _PAIR_BATCH = 1 << 19
@@ -61,6 +64,9 @@ class Tracer:
         Also trace singly diffracted paths (with reflections before and after).
     cone_step : float
         Angular step of the rays launched on Keller cones from lit edges, radians.
+    min_gain_db : float or None
+        Paths whose gain is below this for every pair of polarisations are dropped, dB;
+        None keeps every path.
     """
 
     def __init__(
@@ -72,6 +78,7 @@ class Tracer:
         cell_size: float = 4.0,
         diffraction: bool = True,
         cone_step: float = CONE_STEP,
+        min_gain_db: float | None = MIN_GAIN_DB,
     ):
         if tx is None:
             if scene.transmitter is None:
@@ -88,8 +95,11 @@ class Tracer:
             raise MmwsimError(f"cell_size must be a positive number of metres, got {cell_size}")
         if not (np.isfinite(cone_step) and 0 < cone_step <= 0.5):
             raise MmwsimError(f"cone_step must be in (0, 0.5] radians, got {cone_step}")
+        if min_gain_db is not None and not np.isfinite(min_gain_db):
+            raise MmwsimError(f"min_gain_db must be a finite number of dB or None, got {min_gain_db}")
         self.scene = scene
         self.tx = tx
+        self.min_gain_db = None if min_gain_db is None else float(min_gain_db)
         self.max_reflections = int(max_reflections)
         self.cell_size = float(cell_size)
         self.frequency = scene.frequency
@@ -230,6 +240,9 @@ class Tracer:
     # ------------------------------------------------------------------ assembly
     def _assemble(self, rx: np.ndarray, batches: list[PathBatch]) -> Paths:
         kmax = self.max_reflections
+        if self.min_gain_db is not None:
+            floor = 10.0 ** (self.min_gain_db / 20.0)
+            batches = [b.select(spectral_norm(b.jones) >= floor) for b in batches]
         n = sum(len(b) for b in batches)
         rx_index = np.concatenate([b.rx for b in batches]).astype(np.int64)
         length = np.concatenate([b.length for b in batches])
@@ -278,6 +291,7 @@ def trace(
     n_rays: int = DEFAULT_RAYS,
     tile: int = 65536,
     diffraction: bool = True,
+    min_gain_db: float | None = MIN_GAIN_DB,
 ) -> Paths:
     """Every path of line of sight, reflections and (optionally) one diffraction.
 
@@ -296,12 +310,14 @@ def trace(
         Receivers solved per tile (memory bound; results do not depend on it).
     diffraction : bool
         Trace singly diffracted paths too.
+    min_gain_db : float or None
+        Drop paths weaker than this for every pair of polarisations, dB (None: keep all).
 
     Returns
     -------
     Paths
     """
-    tracer = Tracer(scene, tx, max_reflections, n_rays, diffraction=diffraction)
+    tracer = Tracer(scene, tx, max_reflections, n_rays, diffraction=diffraction, min_gain_db=min_gain_db)
     rx = scene.receivers.positions() if rx_positions is None else np.asarray(rx_positions, dtype=np.float64)
     if rx.ndim == 1 and rx.shape == (3,):
         rx = rx[None]

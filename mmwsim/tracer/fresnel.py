@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ._jit import njit
+
 if TYPE_CHECKING:
     from ..materials import Material
 
@@ -205,6 +207,29 @@ class Surface:
         r_te, r_tm = self.smooth_reflection(cos_theta, wavelength)
         keep = np.sqrt(1.0 - self.roughness**2)
         return r_te * keep, r_tm * keep
+
+
+@njit(cache=True)
+def reflection_scalar(eps: complex, thickness: float, roughness: float, cos_theta: float, wavelength: float):
+    """:meth:`Surface.reflection` for one surface and angle, for compiled kernels.
+
+    Returns ``(r_te, r_tm)``: the half-space (``thickness == 0``) or slab coefficients, times
+    ``sqrt(1 - S^2)``; an infinite permittivity is a perfect conductor (-1, +1).
+    """
+    if not (np.isfinite(eps.real) and np.isfinite(eps.imag)):
+        r_te = -1.0 + 0.0j
+        r_tm = 1.0 + 0.0j
+    else:
+        c = min(cos_theta, 1.0)
+        root = np.sqrt(eps - (1.0 - c * c))
+        r_te = (c - root) / (c + root)
+        r_tm = (eps * c - root) / (eps * c + root)
+        if thickness > 0.0:
+            ph = np.exp(-2j * (2.0 * np.pi * thickness / wavelength * root))
+            r_te = r_te * (1.0 - ph) / (1.0 - r_te * r_te * ph)
+            r_tm = r_tm * (1.0 - ph) / (1.0 - r_tm * r_tm * ph)
+    keep = np.sqrt(1.0 - roughness * roughness)
+    return r_te * keep, r_tm * keep
 
 
 def direction_angles(k: np.ndarray) -> np.ndarray:

@@ -63,9 +63,10 @@ there; :func:`wedge_angles` gives the angles to decide it from (incident shadow 
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import wofz
 
-from .fresnel import Surface, bounce_matrices
+from ._jit import njit
+from ._vec import cross, dot, norm, row, scale, sub, unit
+from .fresnel import Surface, reflection_scalar
 
 __all__ = [
     "ON_BOUNDARY",
@@ -82,8 +83,9 @@ ON_BOUNDARY = 1e-12  # |eps| (rad) up to which a ray counts as exactly on a shad
 def transition_function(x: np.ndarray | float) -> np.ndarray:
     """KP transition function ``F(x) = 2 j sqrt(x) e^{jx} int_sqrt(x)^inf e^{-j t^2} dt``.
 
-    Evaluated as ``sqrt(pi x) e^{j pi/4} wofz(sqrt(x) e^{j 3 pi/4})`` (Faddeeva function), which
-    has no cancellation at large or small ``x``.
+    Through the Fresnel integrals of ``u = sqrt(2 x / pi)`` (Cephes' rational approximations):
+    for ``u < 1.6`` from the power series of C and S, above from their auxiliary functions
+    ``f``, ``g``, where ``F = f(u) + j g(u)`` exactly, with no cancellation at large ``x``.
 
     Parameters
     ----------
@@ -95,9 +97,87 @@ def transition_function(x: np.ndarray | float) -> np.ndarray:
     -------
     (...) complex128
     """
-    x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
-    r = np.sqrt(x)
-    return np.sqrt(np.pi) * r * np.exp(0.25j * np.pi) * wofz(r * np.exp(0.75j * np.pi))
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty(x.shape, np.complex128)
+    _transition_into(x.reshape(-1), out.reshape(-1))
+    return out
+
+
+# Cephes (fresnl.c) coefficients: C and S below u^2 = 2.5625, auxiliary functions f and g above.
+_SN = np.array(
+    [-2.99181919401019853726e3, 7.08840045257738576863e5, -6.29741486205862506537e7,
+     2.54890880573376359104e9, -4.42979518059697779103e10, 3.18016297876567817986e11]
+)  # fmt: skip
+_SD = np.array(
+    [1.0, 2.81376268889994315696e2, 4.55847810806532581675e4, 5.17343888770096400730e6,
+     4.19320245898111231129e8, 2.24411795645340920940e10, 6.07366389490084639049e11]
+)  # fmt: skip
+_CN = np.array(
+    [-4.98843114573573548651e-8, 9.50428062829859605134e-6, -6.45191435683965050962e-4,
+     1.88843319396703850064e-2, -2.05525900955013891793e-1, 9.99999999999999998822e-1]
+)  # fmt: skip
+_CD = np.array(
+    [3.99982968972495980367e-12, 9.15439215774657478799e-10, 1.25001862479598821474e-7,
+     1.22262789024179030997e-5, 8.68029542941784300606e-4, 4.12142090722199792936e-2,
+     1.00000000000000000118e0]
+)  # fmt: skip
+_FN = np.array(
+    [4.21543555043677546506e-1, 1.43407919780758885261e-1, 1.15220955073585758835e-2,
+     3.45017939782574027900e-4, 4.63613749287867322088e-6, 3.05568983790257605827e-8,
+     1.02304514164907233465e-10, 1.72010743268161828879e-13, 1.34283276233062758925e-16,
+     3.76329711269987889006e-20]
+)  # fmt: skip
+_FD = np.array(
+    [1.0, 7.51586398353378947175e-1, 1.16888925859191382142e-1, 6.44051526508858611005e-3,
+     1.55934409164153020873e-4, 1.84627567348930545870e-6, 1.12699224763999035261e-8,
+     3.60140029589371370404e-11, 5.88754533621578410010e-14, 4.52001434074129701496e-17,
+     1.25443237090011264384e-20]
+)  # fmt: skip
+_GN = np.array(
+    [5.04442073643383265887e-1, 1.97102833525523411709e-1, 1.87648584092575249293e-2,
+     6.84079380915393090172e-4, 1.15138826111884280931e-5, 9.82852443688422223854e-8,
+     4.45344415861750144738e-10, 1.08268041139020870318e-12, 1.37555460633261799868e-15,
+     8.36354435630677421531e-19, 1.86958710162783235106e-22]
+)  # fmt: skip
+_GD = np.array(
+    [1.0, 1.47495759925128324529e0, 3.37748989120019970451e-1, 2.53603741420338795122e-2,
+     8.14679107184306179049e-4, 1.27545075667729118702e-5, 1.04314589657571990585e-7,
+     4.60680728146520428211e-10, 1.10273215066240270757e-12, 1.38796531259578871258e-15,
+     8.39158816283118707363e-19, 1.86958710162783236342e-22]
+)  # fmt: skip
+
+
+@njit(cache=True)
+def _polevl(x, coef):  # pragma: no cover - compiled
+    """Horner's rule, coefficients from the highest power."""
+    acc = 0.0
+    for c in coef:
+        acc = acc * x + c
+    return acc
+
+
+@njit(cache=True)
+def _transition(x):  # pragma: no cover - compiled
+    if not x > 0.0:
+        return 0.0j
+    u2 = 2.0 * x / np.pi
+    if u2 < 2.5625:
+        u = np.sqrt(u2)
+        t = u2 * u2
+        ss = u * u2 * _polevl(t, _SN) / _polevl(t, _SD)
+        cc = u * _polevl(t, _CN) / _polevl(t, _CD)
+        return 1j * np.sqrt(2.0 * np.pi * x) * np.exp(1j * x) * ((0.5 - 0.5j) - cc + 1j * ss)
+    t = np.pi * u2
+    w = 1.0 / (t * t)
+    f = 1.0 - w * _polevl(w, _FN) / _polevl(w, _FD)
+    g = _polevl(w, _GN) / _polevl(w, _GD) / t
+    return f + 1j * g
+
+
+@njit(cache=True)
+def _transition_into(x, out):  # pragma: no cover - compiled
+    for i in range(len(x)):
+        out[i] = _transition(x[i])
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -106,14 +186,6 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", a, b)
-
-
-def _edge_basis(e: np.ndarray, k: np.ndarray, incident: bool) -> np.ndarray:
-    """KP edge-fixed basis ``[beta0_hat, phi_hat]`` (m, 3, 2) of a ray of direction ``k``."""
-    phi = _unit(np.cross(e, k))
-    if incident:
-        phi = -phi
-    return np.stack([np.cross(k, phi), phi], axis=-1)
 
 
 def wedge_angles(
@@ -131,54 +203,149 @@ def wedge_angles(
     phi_in, phi_out : (m,) float, radians in [0, n pi]
     n : (m,) float in [1, 2]
     """
-    e = _unit(edge)
-    n = 2.0 - np.arccos(np.clip(_dot(t0, tn), -1.0, 1.0)) / np.pi
-
-    def angle(d: np.ndarray) -> np.ndarray:
-        d = d - _dot(d, e)[:, None] * e
-        a = np.mod(np.arctan2(_dot(d, n0), _dot(d, t0)), 2.0 * np.pi)
-        # Round-off may put a ray grazing a face a hair inside the wedge: snap to that face.
-        a = np.where(a > n * np.pi, np.where(a > (n + 2.0) * np.pi / 2.0, 0.0, n * np.pi), a)
-        return a
-
-    return angle(-np.asarray(k_in, np.float64)), angle(np.asarray(k_out, np.float64)), n
+    args = [
+        np.ascontiguousarray(np.asarray(v, np.float64).reshape(-1, 3))
+        for v in (k_in, k_out, edge, t0, n0, tn)
+    ]
+    m = len(args[0])
+    out = np.empty((3, m))
+    _angles_into(*args, out)
+    return out[0], out[1], out[2]
 
 
-def _cot_f(eps: np.ndarray, n: np.ndarray, kl: np.ndarray) -> np.ndarray:
+@njit(cache=True)
+def _wedge_n(t0, tn):  # pragma: no cover - compiled
+    return 2.0 - np.arccos(min(max(dot(t0, tn), -1.0), 1.0)) / np.pi
+
+
+@njit(cache=True)
+def _angle(d, e, t0, n0, n):  # pragma: no cover - compiled
+    """Angle of ``d`` about the edge from the 0-face through the exterior, in [0, n pi]."""
+    d = sub(d, scale(e, dot(d, e)))
+    a = np.arctan2(dot(d, n0), dot(d, t0)) % (2.0 * np.pi)
+    # Round-off may put a ray grazing a face a hair inside the wedge: snap to that face.
+    if a > n * np.pi:
+        a = 0.0 if a > (n + 2.0) * np.pi / 2.0 else n * np.pi
+    return a
+
+
+@njit(cache=True)
+def _angles_into(k_in, k_out, edge, t0, n0, tn, out):  # pragma: no cover - compiled
+    for i in range(len(k_in)):
+        e = unit(row(edge, i))
+        a0, an = row(t0, i), row(tn, i)
+        n = _wedge_n(a0, an)
+        out[0, i] = _angle(scale(row(k_in, i), -1.0), e, a0, row(n0, i), n)
+        out[1, i] = _angle(row(k_out, i), e, a0, row(n0, i), n)
+        out[2, i] = n
+
+
+@njit(cache=True)
+def _cot_f(eps, n, kl):  # pragma: no cover - compiled
     """``cot(eps / 2n) F(2 k L sin^2(eps / 2))``, the KP term at distance ``eps`` from its boundary."""
-    small = np.abs(eps) < _EPS_SMALL
-    safe = np.where(small, 1.0, eps)
-    far = transition_function(2.0 * kl * np.sin(safe / 2.0) ** 2) / np.tan(safe / (2.0 * n))
-    side = np.where(np.abs(eps) <= ON_BOUNDARY, 0.0, np.sign(eps))
-    near = n * (np.sqrt(2.0 * np.pi * kl) * side - 2.0 * kl * eps * np.exp(0.25j * np.pi))
-    return np.where(small, near * np.exp(0.25j * np.pi), far)
+    if abs(eps) < _EPS_SMALL:
+        side = 0.0 if abs(eps) <= ON_BOUNDARY else np.sign(eps)
+        near = n * (np.sqrt(2.0 * np.pi * kl) * side - 2.0 * kl * eps * np.exp(0.25j * np.pi))
+        return near * np.exp(0.25j * np.pi)
+    return _transition(2.0 * kl * np.sin(eps / 2.0) ** 2) / np.tan(eps / (2.0 * n))
 
 
-def _c_plus(beta: np.ndarray, n: np.ndarray, kl: np.ndarray) -> np.ndarray:
-    big_n = np.round((beta + np.pi) / (2.0 * np.pi * n))
+@njit(cache=True)
+def _c_plus(beta, n, kl):  # pragma: no cover - compiled
+    big_n = np.rint((beta + np.pi) / (2.0 * np.pi * n))
     return _cot_f(np.pi + beta - 2.0 * np.pi * n * big_n, n, kl)
 
 
-def _c_minus(beta: np.ndarray, n: np.ndarray, kl: np.ndarray) -> np.ndarray:
-    big_n = np.round((beta - np.pi) / (2.0 * np.pi * n))
+@njit(cache=True)
+def _c_minus(beta, n, kl):  # pragma: no cover - compiled
+    big_n = np.rint((beta - np.pi) / (2.0 * np.pi * n))
     return _cot_f(np.pi - beta + 2.0 * np.pi * n * big_n, n, kl)
 
 
-def _reflection_2x2(
-    e: np.ndarray,
-    k_inc: np.ndarray,
-    k_ref: np.ndarray,
-    normal: np.ndarray,
-    surface: Surface,
-    wavelength: float,
-) -> np.ndarray:
-    """``-B_ref^T M B_inc`` (m, 2, 2): a face's specular reflection in edge-fixed bases."""
-    cos = np.minimum(np.abs(_dot(k_inc, normal)), 1.0)
-    r_te, r_tm = surface.reflection(cos, wavelength)
-    m = bounce_matrices(k_inc, k_ref, normal, r_te, r_tm)
-    b_inc = _edge_basis(e, k_inc, incident=True)
-    b_ref = _edge_basis(e, k_ref, incident=False)
-    return -(np.swapaxes(b_ref, 1, 2) @ (m @ b_inc))
+@njit(cache=True)
+def _edge_basis(e, k, incident):  # pragma: no cover - compiled
+    """KP edge-fixed unit vectors ``(beta0_hat, phi_hat)`` of a ray of direction ``k``."""
+    phi = unit(cross(e, k))
+    if incident:
+        phi = scale(phi, -1.0)
+    return cross(k, phi), phi
+
+
+@njit(cache=True)
+def bounce_scalar(k_in, k_out, normal, r_te, r_tm, out):  # pragma: no cover - compiled
+    """:func:`~mmwsim.tracer.fresnel.bounce_matrices` of one bounce into ``out`` (3, 3) complex."""
+    e_s = cross(k_in, normal)
+    ns = norm(e_s)
+    if ns < 1e-9:
+        # Normal incidence: any s direction will do, both coefficients describe one field.
+        alt = (1.0, 0.0, 0.0) if abs(normal[0]) < 0.9 else (0.0, 1.0, 0.0)
+        e_s = cross(alt, normal)
+        ns = norm(e_s)
+    e_s = scale(e_s, 1.0 / ns)
+    e_pi = cross(k_in, e_s)
+    e_po = cross(k_out, e_s)
+    for a in range(3):
+        for b in range(3):
+            out[a, b] = r_te * e_s[a] * e_s[b] + r_tm * e_po[a] * e_pi[b]
+
+
+@njit(cache=True)
+def _reflection_2x2(e, k_inc, k_ref, normal, eps, thick, rough, wavelength, m3, out):  # pragma: no cover
+    """``-B_ref^T M B_inc`` into ``out`` (2, 2): a face's specular reflection in edge-fixed bases."""
+    r_te, r_tm = reflection_scalar(eps, thick, rough, min(abs(dot(k_inc, normal)), 1.0), wavelength)
+    bounce_scalar(k_inc, k_ref, normal, r_te, r_tm, m3)
+    bi0, bi1 = _edge_basis(e, k_inc, True)
+    br0, br1 = _edge_basis(e, k_ref, False)
+    for a in range(2):
+        ra = br0 if a == 0 else br1
+        for b in range(2):
+            cb = bi0 if b == 0 else bi1
+            acc = 0.0j
+            for i in range(3):
+                for j in range(3):
+                    acc += ra[i] * m3[i, j] * cb[j]
+            out[a, b] = -acc
+
+
+@njit(cache=True)
+def diffraction_scalar(
+    k_in, k_out, e, t0, n0, tn, nn, s_in, s_out, wavelength,
+    eps0, thick0, rough0, epsn, thickn, roughn, m3, r0, rn, out,
+):  # pragma: no cover - compiled  # fmt: skip
+    """:func:`diffraction_matrices` of one diffraction point into ``out`` (3, 3) complex.
+
+    ``m3`` (3, 3) complex and ``r0``, ``rn`` (2, 2) complex are work arrays.
+    """
+    k = 2.0 * np.pi / wavelength
+    e = unit(e)
+    n = _wedge_n(t0, tn)
+    phi_in = _angle(scale(k_in, -1.0), e, t0, n0, n)
+    phi_out = _angle(k_out, e, t0, n0, n)
+    ce = dot(k_in, e)
+    sin2 = max(1.0 - ce * ce, 0.0)
+    ratio = 1.0 if np.isinf(s_in) else s_in / (s_in + s_out)
+    kl = k * s_out * ratio * sin2
+    p = -np.exp(-0.25j * np.pi) / (2.0 * n * np.sqrt(2.0 * np.pi * k) * np.sqrt(sin2))
+    d_inc = _c_plus(phi_out - phi_in, n, kl) + _c_minus(phi_out - phi_in, n, kl)
+    c_0 = _c_minus(phi_out + phi_in, n, kl)  # 0-face reflection boundary phi = pi - phi'
+    c_n = _c_plus(phi_out + phi_in, n, kl)  # n-face reflection boundary phi = (2n - 1) pi - phi'
+    _reflection_2x2(
+        e, k_in, sub(k_in, scale(n0, 2.0 * dot(k_in, n0))), n0, eps0, thick0, rough0, wavelength, m3, r0
+    )
+    virt = sub(k_out, scale(nn, 2.0 * dot(k_out, nn)))
+    _reflection_2x2(e, virt, k_out, nn, epsn, thickn, roughn, wavelength, m3, rn)
+    bi0, bi1 = _edge_basis(e, k_in, True)
+    bo0, bo1 = _edge_basis(e, k_out, False)
+    for a in range(2):
+        for b in range(2):
+            diag = d_inc if a == b else 0.0j
+            r0[a, b] = p * (diag + c_0 * r0[a, b] + c_n * rn[a, b])
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = -(
+                bo0[i] * (r0[0, 0] * bi0[j] + r0[0, 1] * bi1[j])
+                + bo1[i] * (r0[1, 0] * bi0[j] + r0[1, 1] * bi1[j])
+            )
 
 
 def diffraction_matrices(
@@ -227,35 +394,33 @@ def diffraction_matrices(
         ``A = sqrt(s_in / (s_out (s_in + s_out)))`` (``1 / sqrt(s_out)`` for a plane wave);
         see the module docstring for the convention.
     """
-    k_in = np.asarray(k_in, np.float64).reshape(-1, 3)
-    k_out = np.asarray(k_out, np.float64).reshape(-1, 3)
-    e = _unit(np.asarray(edge, np.float64).reshape(-1, 3))
-    t0, n0, tn, nn = (np.asarray(v, np.float64).reshape(-1, 3) for v in (t0, n0, tn, nn))
-    s_in = np.asarray(s_in, np.float64).reshape(-1)
-    s_out = np.asarray(s_out, np.float64).reshape(-1)
-    k = 2.0 * np.pi / wavelength
+    vecs = [
+        np.ascontiguousarray(np.asarray(v, np.float64).reshape(-1, 3))
+        for v in (k_in, k_out, edge, t0, n0, tn, nn)
+    ]
+    m = len(vecs[0])
+    s_in = np.broadcast_to(np.asarray(s_in, np.float64).reshape(-1), (m,))
+    s_out = np.broadcast_to(np.asarray(s_out, np.float64).reshape(-1), (m,))
+    out = np.empty((m, 3, 3), np.complex128)
+    _diffraction_into(
+        *vecs, s_in, s_out, float(wavelength),
+        face0.eps, face0.thickness, face0.roughness, facen.eps, facen.thickness, facen.roughness, out,
+    )  # fmt: skip
+    return out
 
-    phi_in, phi_out, n = wedge_angles(k_in, k_out, e, t0, n0, tn)
-    sin2 = np.maximum(1.0 - _dot(k_in, e) ** 2, 0.0)
-    plane = np.isinf(s_in)
-    with np.errstate(invalid="ignore"):
-        ratio = np.where(plane, 1.0, s_in / (s_in + s_out))
-    kl = k * s_out * ratio * sin2
 
-    p = -np.exp(-0.25j * np.pi) / (2.0 * n * np.sqrt(2.0 * np.pi * k) * np.sqrt(sin2))
-    d_inc = _c_plus(phi_out - phi_in, n, kl) + _c_minus(phi_out - phi_in, n, kl)
-    c_0 = _c_minus(phi_out + phi_in, n, kl)  # 0-face reflection boundary phi = pi - phi'
-    c_n = _c_plus(phi_out + phi_in, n, kl)  # n-face reflection boundary phi = (2n - 1) pi - phi'
-
-    r0 = _reflection_2x2(e, k_in, k_in - 2.0 * _dot(k_in, n0)[:, None] * n0, n0, face0, wavelength)
-    virt = k_out - 2.0 * _dot(k_out, nn)[:, None] * nn
-    rn = _reflection_2x2(e, virt, k_out, nn, facen, wavelength)
-
-    kmat = d_inc[:, None, None] * np.eye(2) + c_0[:, None, None] * r0 + c_n[:, None, None] * rn
-    kmat *= p[:, None, None]
-    b_in = _edge_basis(e, k_in, incident=True)
-    b_out = _edge_basis(e, k_out, incident=False)
-    return -(b_out @ (kmat @ np.swapaxes(b_in, 1, 2)))
+@njit(cache=True)
+def _diffraction_into(
+    k_in, k_out, edge, t0, n0, tn, nn, s_in, s_out, wavelength, eps0, th0, ro0, epsn, thn, ron, out
+):  # pragma: no cover - compiled
+    m3 = np.empty((3, 3), np.complex128)
+    r0 = np.empty((2, 2), np.complex128)
+    rn = np.empty((2, 2), np.complex128)
+    for i in range(len(k_in)):
+        diffraction_scalar(
+            row(k_in, i), row(k_out, i), row(edge, i), row(t0, i), row(n0, i), row(tn, i), row(nn, i),
+            s_in[i], s_out[i], wavelength, eps0[i], th0[i], ro0[i], epsn[i], thn[i], ron[i], m3, r0, rn, out[i],
+        )  # fmt: skip
 
 
 def keller_point(

@@ -1,8 +1,9 @@
 """Reading buildings and highways from an OpenStreetMap file with pyosmium.
 
 pyosmium reads ``.osm`` XML, ``.osm.pbf`` and compressed XML (``.osm.bz2``, ``.osm.gz``), and
-assembles areas from closed ways and multipolygon relations (holes kept). Only the tags the scene
-uses are kept. Geometries come back in degrees (WGS 84), as shapely objects.
+assembles multipolygon relations into areas (holes kept). Closed building ways become polygons
+here, as drawn, so that a self-intersecting one can be repaired later rather than dropped. Only the
+tags the scene uses are kept. Geometries come back in degrees (WGS 84), as shapely objects.
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ class OsmFeatures:
     highways : (m,) shapely LineStrings, lon/lat
     highway_tags : list of dict
     broken : int
-        Building areas pyosmium could not assemble (unclosed rings, missing nodes).
+        Buildings left out because their outline is not closed, lacks nodes in the extract, or
+        (multipolygons) could not be assembled by pyosmium.
     """
 
     buildings: np.ndarray
@@ -85,7 +87,10 @@ def read_osm(path: str | Path) -> OsmFeatures:
     if not path.is_file():
         raise MmwsimError(f"{path}: OSM file not found")
     wkb = osmium.geom.WKBFactory()
-    b_wkb: list[bytes] = []
+    ring_wkb: list[bytes] = []  # closed building ways, as their outline
+    ring_tags: list[dict[str, str]] = []
+    ring_ids: list[str] = []
+    b_wkb: list[bytes] = []  # multipolygon relations, assembled by osmium
     b_tags: list[dict[str, str]] = []
     b_ids: list[str] = []
     h_wkb: list[bytes] = []
@@ -101,8 +106,11 @@ def read_osm(path: str | Path) -> OsmFeatures:
         for obj in fp:
             seen += 1
             tags = obj.tags
+            building = tags.get("building", "no") != "no" or tags.get("building:part", "no") != "no"
             if obj.is_area():
-                if tags.get("building", "no") == "no" and tags.get("building:part", "no") == "no":
+                # Closed ways are read as ways below: osmium drops a self-intersecting ring, which
+                # shapely can repair.
+                if not building or obj.from_way():
                     continue
                 try:
                     b_wkb.append(wkb.create_multipolygon(obj))
@@ -110,7 +118,19 @@ def read_osm(path: str | Path) -> OsmFeatures:
                     broken += 1
                     continue
                 b_tags.append(_tags(tags, BUILDING_KEYS))
-                b_ids.append(("w" if obj.from_way() else "r") + str(obj.orig_id()))
+                b_ids.append(f"r{obj.orig_id()}")
+            elif obj.is_way() and building:
+                try:
+                    line = wkb.create_linestring(obj)
+                except (RuntimeError, osmium.InvalidLocationError):  # nodes missing from the extract
+                    broken += 1
+                    continue
+                if not obj.is_closed() or len(obj.nodes) < 4:
+                    broken += 1
+                    continue
+                ring_wkb.append(line)
+                ring_tags.append(_tags(tags, BUILDING_KEYS))
+                ring_ids.append(f"w{obj.id}")
             elif obj.is_way() and "highway" in tags:
                 try:
                     h_wkb.append(wkb.create_linestring(obj))
@@ -120,6 +140,11 @@ def read_osm(path: str | Path) -> OsmFeatures:
     except RuntimeError as e:
         text = " ".join(str(e).split())[:200]
         raise MmwsimError(f"{path}: not a readable OSM file ({text})") from None
-    buildings = shapely.from_wkb(b_wkb) if b_wkb else np.empty(0, dtype=object)
+    rings = shapely.from_wkb(ring_wkb) if ring_wkb else np.empty(0, dtype=object)
+    if len(rings):
+        coords, which = shapely.get_coordinates(rings, return_index=True)
+        rings = shapely.polygons(shapely.linearrings(coords, indices=which))
+    relations = shapely.from_wkb(b_wkb) if b_wkb else np.empty(0, dtype=object)
+    buildings = np.concatenate([rings, relations]).astype(object)
     highways = shapely.from_wkb(h_wkb) if h_wkb else np.empty(0, dtype=object)
-    return OsmFeatures(buildings, b_tags, b_ids, highways, h_tags, broken, seen)
+    return OsmFeatures(buildings, ring_tags + b_tags, ring_ids + b_ids, highways, h_tags, broken, seen)

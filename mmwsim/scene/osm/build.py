@@ -4,8 +4,9 @@ Everything here is in the scene's frame (x east, y north, metres, origin at the 
 corner). Footprints are repaired with ``shapely.make_valid`` when invalid (self-intersections),
 skipped when degenerate (under :data:`MIN_FOOTPRINT_AREA`, or a top not above the base), clipped to
 the area, snapped to a 1 cm grid so that neighbours sharing OSM nodes share exact coordinates, and
-merged with :func:`.extrude.merge_prisms`. A building outline that holds ``building:part`` areas is
-dropped in favour of its parts (Simple 3D Buildings).
+merged with :func:`.extrude.merge_prisms_closed`. A building outline that holds ``building:part``
+areas keeps only what its parts leave uncovered (Simple 3D Buildings), unless a part rises above
+it (see :func:`_outlines_with_parts`).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ class OsmGeometry:
         The buildings' cleaned footprints, before merging (for checks).
     stats : dict
         Counts: ``buildings_read``, ``in_area``, ``clipped``, ``repaired``, ``skipped``,
-        ``outlines_with_parts``, ``broken``, ``tagged_material``, ``blocks``, ``streets``.
+        ``outlines_trimmed`` and ``outlines_dropped`` (by their parts), ``broken``,
+        ``tagged_material``, ``blocks``, ``streets``.
     """
 
     objects: list[tuple[str, str, str, np.ndarray, np.ndarray]]
@@ -93,6 +95,39 @@ def _near(geoms: np.ndarray, area: OsmArea) -> np.ndarray:
     return np.flatnonzero((b[:, 0] <= e) & (b[:, 2] >= w) & (b[:, 1] <= n) & (b[:, 3] >= s))
 
 
+def _outlines_with_parts(g: np.ndarray, heights: np.ndarray, tags: list[dict], stats: dict):
+    """Outlines (``building``) that hold parts (``building:part``).
+
+    Simple 3D Buildings draws such an outline by its parts only, the outline's height being the
+    tallest part's: then only what the parts leave uncovered keeps the outline's prism. Many
+    extracts instead tag the outline with its own lower floors and map only a setback or a tower
+    as a part above them (a part rising above the outline's top): that outline stays whole.
+    """
+    is_part = np.array([t.get("building:part", "no") != "no" for t in tags], dtype=bool)
+    stats["outlines_trimmed"] = stats["outlines_dropped"] = 0
+    if not is_part.any() or is_part.all():
+        return g, heights, tags
+    outline_idx = np.flatnonzero(~is_part)
+    part_idx = np.flatnonzero(is_part)
+    part_at, outline_at = shapely.STRtree(g[outline_idx]).query(
+        shapely.point_on_surface(g[part_idx]), predicate="within"
+    )
+    keep = np.ones(len(g), dtype=bool)
+    for k in np.unique(outline_at):
+        i = outline_idx[k]
+        parts = part_idx[part_at[outline_at == k]]
+        if heights[parts, 1].max() > heights[i, 1]:
+            continue  # the outline is the lower floors
+        rest = _polygonal(shapely.difference(g[i], shapely.union_all(g[parts])))
+        if rest is None or rest.area < MIN_FOOTPRINT_AREA:
+            keep[i] = False
+            stats["outlines_dropped"] += 1
+        else:
+            g[i] = rest
+            stats["outlines_trimmed"] += 1
+    return g[keep], heights[keep], [t for t, k in zip(tags, keep, strict=True) if k]
+
+
 def _buildings(feat: OsmFeatures, area: OsmArea, box: shapely.Polygon, stats: dict):
     """Footprints in the frame, clipped and snapped, with base, top and material of each."""
     stats["buildings_read"] = len(feat.buildings)
@@ -115,16 +150,7 @@ def _buildings(feat: OsmFeatures, area: OsmArea, box: shapely.Polygon, stats: di
     stats["repaired"] = int((invalid & ok).sum())
     g, heights, tags = g[ok].astype(object), heights[ok], [t for t, k in zip(tags, ok, strict=True) if k]
 
-    # Simple 3D Buildings: an outline with parts inside is drawn by its parts only
-    is_part = np.array([t.get("building:part", "no") != "no" for t in tags], dtype=bool)
-    drop = np.zeros(len(g), dtype=bool)
-    if is_part.any() and (~is_part).any():
-        outline_idx = np.flatnonzero(~is_part)
-        tree = shapely.STRtree(g[outline_idx])
-        _, hit = tree.query(shapely.point_on_surface(g[is_part]), predicate="within")
-        drop[outline_idx[np.unique(hit)]] = True
-    stats["outlines_with_parts"] = int(drop.sum())
-    g, heights, tags = g[~drop], heights[~drop], [t for t, d in zip(tags, drop, strict=True) if not d]
+    g, heights, tags = _outlines_with_parts(g, heights, tags, stats)
 
     inside = shapely.within(g, box) if len(g) else np.zeros(0, bool)
     stats["clipped"] = int((~inside).sum())

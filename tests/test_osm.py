@@ -120,6 +120,9 @@ def write_city(folder: Path, extra_tag: str = "") -> tuple[Path, OsmWriter]:
         w.way(pts, {"building": "yes", **tags, **({"note": extra_tag} if extra_tag else {})})
     outer = w.way(COURTYARD_OUTER, {})
     inner = w.way(COURTYARD_INNER, {})
+    # a building cut by the extract's edge: one of its nodes is missing
+    w.way([(150, 120), (160, 120), (160, 130)], {"building": "yes"})
+    w.ways[-1] = w.ways[-1].replace(f'<nd ref="{w.node((150, 120))}"/><tag', '<nd ref="999999"/><tag')
     w.way(STREET, {"highway": "residential"}, closed=False)
     w.way(FOOTWAY, {"highway": "footway"}, closed=False)
     w.way(TUNNEL, {"highway": "primary", "tunnel": "yes"}, closed=False)
@@ -292,8 +295,11 @@ def test_repaired_skipped_and_clipped_are_counted(city):
     assert s["repaired"] == 1  # the bow-tie
     assert s["skipped"] == 1  # the 0.5 m x 0.5 m one
     assert s["clipped"] == 1 and s["in_area"] == 13
+    assert s["broken"] == 1  # the one cut by the extract's edge
     msgs = [str(c.message) for c in caught if issubclass(c.category, OsmWarning)]
-    assert len(msgs) == 1 and "1 building footprints repaired" in msgs[0] and "1 skipped" in msgs[0]
+    assert len(msgs) == 1
+    for text in ("1 building footprints repaired", "1 skipped", "1 building outlines near the area left out"):
+        assert text in msgs[0]
     crossing = _group_at(scene, (190, 160))
     assert crossing.bounds[1, 0] == pytest.approx(SIZE, abs=1e-9) and crossing.is_watertight
 

@@ -43,7 +43,8 @@ class OsmGeometry:
         The buildings' cleaned footprints, before merging (for checks).
     stats : dict
         Counts: ``buildings_read``, ``in_area``, ``clipped``, ``repaired``, ``skipped``,
-        ``outlines_trimmed`` and ``outlines_dropped`` (by their parts), ``broken``,
+        ``outlines_trimmed`` and ``outlines_dropped`` (by their parts), ``broken`` (building ways
+        near the area left out: not closed, or cut by the extract's edge),
         ``tagged_material``, ``blocks``, ``streets``.
     """
 
@@ -225,7 +226,9 @@ def build_geometry(feat: OsmFeatures, area: OsmArea, roads: bool = False) -> Osm
         Objects ``ground`` (concrete), optionally ``roads`` (asphalt), and ``building_NN``
         (one per group of touching buildings and material).
     """
-    stats: dict[str, int] = {"broken": int(feat.broken)}
+    w, s, e, n = area.lon_lat_bounds()
+    lon, lat = feat.broken.T
+    stats: dict[str, int] = {"broken": int(((lon >= w) & (lon <= e) & (lat >= s) & (lat <= n)).sum())}
     width, height = area.extent
     box = shapely.box(0.0, 0.0, float(width), float(height))
     polys, z_min, z_max, materials = _buildings(feat, area, box, stats)

@@ -157,7 +157,9 @@ def _warn(path: Path, stats: dict[str, int]) -> None:
     if stats.get("skipped"):
         parts.append(f"{stats['skipped']} skipped (degenerate: under 1 m2, or top not above base)")
     if stats.get("broken"):
-        parts.append(f"{stats['broken']} building areas in the file could not be assembled")
+        parts.append(
+            f"{stats['broken']} building outlines near the area left out (not closed, or cut by the extract's edge)"
+        )
     if parts:
         warnings.warn(f"{path}: " + "; ".join(parts), OsmWarning, stacklevel=3)
 

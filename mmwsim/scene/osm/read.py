@@ -55,9 +55,10 @@ class OsmFeatures:
         ``w<way id>`` or ``r<relation id>``.
     highways : (m,) shapely LineStrings, lon/lat
     highway_tags : list of dict
-    broken : int
-        Buildings left out because their outline is not closed, lacks nodes in the extract, or
-        (multipolygons) could not be assembled by pyosmium.
+    broken : (k, 2) float64
+        Longitude, latitude of a node of each building way left out because its outline is not
+        closed or lacks nodes in the extract (NaN where no node of it is there). Multipolygons
+        that pyosmium cannot assemble are not reported by it.
     """
 
     buildings: np.ndarray
@@ -65,8 +66,8 @@ class OsmFeatures:
     building_ids: list[str]
     highways: np.ndarray
     highway_tags: list[dict[str, str]]
-    broken: int = 0
-    objects: int = field(default=0)
+    broken: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    objects: int = 0
 
 
 def _tags(tags, keys: tuple[str, ...]) -> dict[str, str]:
@@ -95,7 +96,7 @@ def read_osm(path: str | Path) -> OsmFeatures:
     b_ids: list[str] = []
     h_wkb: list[bytes] = []
     h_tags: list[dict[str, str]] = []
-    broken = 0
+    broken: list[tuple[float, float]] = []
     seen = 0
     try:
         fp = (
@@ -115,18 +116,18 @@ def read_osm(path: str | Path) -> OsmFeatures:
                 try:
                     b_wkb.append(wkb.create_multipolygon(obj))
                 except (RuntimeError, osmium.InvalidLocationError):  # an area osmium could not build
-                    broken += 1
                     continue
                 b_tags.append(_tags(tags, BUILDING_KEYS))
                 b_ids.append(f"r{obj.orig_id()}")
             elif obj.is_way() and building:
                 try:
                     line = wkb.create_linestring(obj)
+                    closed = obj.is_closed() and len(obj.nodes) >= 4
                 except (RuntimeError, osmium.InvalidLocationError):  # nodes missing from the extract
-                    broken += 1
-                    continue
-                if not obj.is_closed() or len(obj.nodes) < 4:
-                    broken += 1
+                    line, closed = None, False
+                if not closed:
+                    known = [(n.lon, n.lat) for n in obj.nodes if n.location.valid()]
+                    broken.append(known[0] if known else (np.nan, np.nan))
                     continue
                 ring_wkb.append(line)
                 ring_tags.append(_tags(tags, BUILDING_KEYS))
@@ -147,4 +148,12 @@ def read_osm(path: str | Path) -> OsmFeatures:
     relations = shapely.from_wkb(b_wkb) if b_wkb else np.empty(0, dtype=object)
     buildings = np.concatenate([rings, relations]).astype(object)
     highways = shapely.from_wkb(h_wkb) if h_wkb else np.empty(0, dtype=object)
-    return OsmFeatures(buildings, ring_tags + b_tags, ring_ids + b_ids, highways, h_tags, broken, seen)
+    return OsmFeatures(
+        buildings,
+        ring_tags + b_tags,
+        ring_ids + b_ids,
+        highways,
+        h_tags,
+        np.array(broken).reshape(-1, 2),
+        seen,
+    )

@@ -381,6 +381,22 @@ def test_cache_skips_parsing_and_notices_a_changed_file(tmp_path, monkeypatch):
         assert len(calls) == 3
 
 
+def test_cache_that_cannot_be_used_is_bypassed(tmp_path, monkeypatch):
+    path, _ = write_city(tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OsmWarning)
+        reference = scene_fingerprint(load_osm(path, cache=False, **AREA))
+        (tmp_path / "a_file").write_text("not a folder")
+        monkeypatch.setenv("MMWSIM_CACHE_DIR", str(tmp_path / "a_file" / "cache"))
+        assert scene_fingerprint(load_osm(path, **AREA)) == reference  # unwritable: built, not cached
+        monkeypatch.setenv("MMWSIM_CACHE_DIR", str(tmp_path / "cache2"))
+        load_osm(path, **AREA)
+        (entry,) = (tmp_path / "cache2").glob("*.npz")
+        entry.write_bytes(b"garbage")
+        assert scene_fingerprint(load_osm(path, **AREA)) == reference  # unreadable entry: rebuilt
+        assert entry.read_bytes()[:2] == b"PK"  # and written again
+
+
 def test_toml_names_an_osm_source(tmp_path):
     path, _ = write_city(tmp_path)
     (tmp_path / "scene.toml").write_text(
@@ -458,6 +474,11 @@ def test_cli_area_errors(tmp_path, capsys, args, message):
         ("page.osm", "<html><body>not osm</body></html>", "not a readable OSM file"),
         ("random.osm.pbf", "this is not a protobuf file at all", "not a readable OSM file"),
         ("empty.osm", "<?xml version='1.0'?><osm version=\"0.6\"></osm>", "holds no buildings or highways"),
+        (
+            "entities.osm",
+            '<?xml version="1.0"?><!DOCTYPE osm [<!ENTITY a "aaaa">]><osm version="0.6"></osm>',
+            "XML entities are not supported",
+        ),
     ],
 )
 def test_cli_bad_files(tmp_path, capsys, name, content, message):

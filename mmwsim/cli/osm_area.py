@@ -42,9 +42,5 @@ def scene_spec(args) -> str:
         raise MmwsimError(
             f"{args.scene}: an OSM file needs an area: --bbox S,W,N,E or --center LAT,LON --size WxH"
         )
-    try:
-        area = OsmArea.parse(bbox=args.bbox, center=args.center, size=args.size)
-    except MmwsimError as e:
-        flag = "--bbox" if args.bbox is not None else "--center/--size"
-        raise MmwsimError(f"{flag}: {e}") from None
+    area = OsmArea.parse(bbox=args.bbox, center=args.center, size=args.size)  # errors name the value
     return osm_spec(args.scene, area, roads=args.roads)

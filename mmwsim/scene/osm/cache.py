@@ -57,6 +57,9 @@ def write_entry(key: str, meta: dict, arrays: dict[str, np.ndarray]) -> Path | N
         np.savez(tmp, meta=np.array(json.dumps(meta, sort_keys=True)), **arrays)
         os.replace(tmp, path)
     except OSError:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
         return None
     return path

@@ -39,8 +39,6 @@ class OsmGeometry:
     objects : list of (name, kind, material, vertices (v, 3) float64, faces (f, 3) int64)
     street_lines : list of (k, 2) float64
         Centre lines of the drivable highways in the area, metres.
-    footprints : (n,) shapely geometries
-        The buildings' cleaned footprints, before merging (for checks).
     stats : dict
         Counts: ``buildings_read``, ``in_area``, ``clipped``, ``repaired``, ``skipped``,
         ``outlines_trimmed`` and ``outlines_dropped`` (by their parts), ``broken`` (building ways
@@ -50,7 +48,6 @@ class OsmGeometry:
 
     objects: list[tuple[str, str, str, np.ndarray, np.ndarray]]
     street_lines: list[np.ndarray]
-    footprints: np.ndarray
     stats: dict[str, int] = field(default_factory=dict)
 
 
@@ -249,4 +246,4 @@ def build_geometry(feat: OsmFeatures, area: OsmArea, roads: bool = False) -> Osm
             ground = _polygonal(_snap(shapely.difference(box, road))) or box
             flat.append(("roads", "ground", "asphalt", *_triangles_up(road)))
     flat.insert(0, ("ground", "ground", "concrete", *_triangles_up(ground)))
-    return OsmGeometry(flat + objects, pieces, polys, stats)
+    return OsmGeometry(flat + objects, pieces, stats)

@@ -112,7 +112,7 @@ def _unpack(meta: dict, arrays: dict[str, np.ndarray]) -> OsmGeometry:
     ]
     off, xy = arrays["street_off"], arrays["street_xy"]
     lines = [xy[off[k] : off[k + 1]] for k in range(len(off) - 1)]
-    return OsmGeometry(objects, lines, np.empty(0, object), {k: int(v) for k, v in meta["stats"].items()})
+    return OsmGeometry(objects, lines, {k: int(v) for k, v in meta["stats"].items()})
 
 
 def osm_geometry(path: str | Path, area: OsmArea, roads: bool = False, cache: bool = True) -> OsmGeometry:

@@ -25,12 +25,15 @@ from .fingerprints import FingerprintSampler, fingerprints, power_delay_profile
 from .materials import ITU_MATERIALS, Material, get_material, material_names
 from .recording import Entity, Recording, Timeline
 from .scene import (
+    OsmScene,
+    OsmWarning,
     ReceiverGrid,
     Scene,
     SceneObject,
     Transmitter,
     load_mesh_file,
     load_mitsuba,
+    load_osm,
     load_scene,
     load_toml,
 )
@@ -85,6 +88,8 @@ __all__ = [
     "MaterialRangeWarning",
     "Material",
     "MmwsimError",
+    "OsmScene",
+    "OsmWarning",
     "ReceiverGrid",
     "Recording",
     "Scene",
@@ -94,6 +99,7 @@ __all__ = [
     "get_material",
     "load_mesh_file",
     "load_mitsuba",
+    "load_osm",
     "load_scene",
     "load_toml",
     "material_names",

@@ -1,11 +1,14 @@
 """The scene catalogue: the embedded default scene, procedural cities and canonical test scenes.
 
 Load by name with :func:`load`; a name may carry parameters, e.g.
-``manhattan:seed=3,median_height=30`` or ``ground_wall:distance=15``.
+``manhattan:seed=3,median_height=30`` or ``ground_wall:distance=15``. An entry whose first
+parameter is ``path`` takes it without a key (``osm:city.osm.pbf,bbox=...``), and a value may hold
+commas (``bbox=60.16,24.93,60.17,24.95``): an item without ``=`` continues the value before it.
 """
 
 from __future__ import annotations
 
+import inspect
 from importlib import resources
 from typing import Any
 
@@ -15,6 +18,7 @@ from mmwsim.scene import Scene, load_toml
 from .canonical import corner_reflector, free_space, ground_only, ground_wall, street_canyon
 from .downtown import downtown_buildings, write_default
 from .manhattan import manhattan_city
+from .osm import osm_scene
 
 __all__ = [
     "CATALOGUE",
@@ -27,6 +31,7 @@ __all__ = [
     "load",
     "manhattan_city",
     "names",
+    "osm_scene",
     "street_canyon",
     "write_default",
 ]
@@ -51,6 +56,7 @@ CATALOGUE = {
     "ground_wall": ground_wall,
     "street_canyon": street_canyon,
     "corner_reflector": corner_reflector,
+    "osm": osm_scene,
 }
 
 
@@ -84,11 +90,20 @@ def load(name: str, transmitter: tuple[float, float, float] | None = None) -> Sc
             f"unknown scene {name!r}: not a file, and not in the catalogue ({', '.join(names())})"
         )
     kwargs: dict[str, Any] = {}
-    for item in filter(None, params.split(",")):
+    raw: dict[str, str] = {}
+    last = None
+    takes_path = next(iter(inspect.signature(CATALOGUE[base]).parameters), None) == "path"
+    for i, item in enumerate(filter(None, params.split(","))):
         key, eq, value = item.partition("=")
-        if not eq:
+        if not eq and i == 0 and takes_path:
+            key, value = "path", item
+        elif not eq and last is not None:
+            key, value = last, f"{raw[last]},{item}"
+        elif not eq:
             raise MmwsimError(f"scene {name!r}: parameter {item!r} is not key=value")
-        kwargs[key.strip()] = _parse_value(value.strip())
+        last = key = key.strip()
+        raw[key] = value.strip()
+        kwargs[key] = raw[key] if key == "path" else _parse_value(raw[key])
     if transmitter is not None:
         kwargs["tx"] = tuple(float(v) for v in transmitter)
     try:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .osm_area import add_area_arguments, scene_spec
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -33,6 +35,7 @@ def register(sub) -> None:
     p.add_argument("--rrd", metavar="FILE", help="also write a Rerun recording (.rrd) of the data set")
     p.add_argument("--tile-size", type=int, default=4096, help="receivers per tile (default 4096)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_area_arguments(p)
     p.set_defaults(func=_generate)
 
 
@@ -50,10 +53,11 @@ def _generate(args) -> int:
     from ..dataset import Dataset, generate
     from . import parse_vector
 
+    scene = scene_spec(args)
     out = args.out or _default_out(args.scene)
     t0 = time.perf_counter()
     path = generate(
-        args.scene,
+        scene,
         out,
         spacing=args.spacing,
         max_reflections=args.max_reflections,

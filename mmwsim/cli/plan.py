@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..errors import MmwsimError
 from ..files import write_text_atomic
+from .osm_area import add_area_arguments, scene_spec
 
 _EPILOG = """\
 corridor files: .csv with a header naming columns x,y and optionally trajectory (rows of one
@@ -58,6 +59,7 @@ def register(sub) -> None:
     p.add_argument("--no-optimum", action="store_true", help="skip the exact shortest path")
     p.add_argument("--json", help="write the result (path, cost curve, optimum) to this .json file")
     p.add_argument("--rrd", help="write a Rerun recording of the search to this .rrd file")
+    add_area_arguments(p)
     p.set_defaults(func=_plan)
 
 
@@ -97,7 +99,7 @@ def _plan(args) -> int:
 
     import planning
 
-    scene = load_scene(args.scene)
+    scene = load_scene(scene_spec(args))
     corridor = planning.load_corridor(args.corridor, args.corridor_width) if args.corridor else None
     space = planning.FreeSpace(scene, radius=args.radius, corridor=corridor, resolution=args.resolution)
     result = planning.plan(

@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 from ..errors import MmwsimError
+from .osm_area import add_area_arguments, scene_spec
 
 
 def register(sub) -> None:
@@ -19,12 +20,15 @@ def register(sub) -> None:
     common.add_argument("--tx", help="transmitter position X,Y,Z in metres (overrides the scene's)")
     show = ss.add_parser("show", parents=[common], help="print a summary")
     show.set_defaults(func=_show)
+    add_area_arguments(show)
     export = ss.add_parser("export", parents=[common], help="write all meshes as one mesh file")
     export.add_argument("--out", required=True, help="output file; format by suffix (.ply .obj .glb .stl)")
     export.set_defaults(func=_export)
+    add_area_arguments(export)
     record = ss.add_parser("record", parents=[common], help="write a Rerun recording of the scene")
     record.add_argument("--rrd", required=True, help="output .rrd file")
     record.set_defaults(func=_record)
+    add_area_arguments(record)
     names = ss.add_parser("list", help="list the catalogue")
     names.set_defaults(func=_list)
 
@@ -34,7 +38,7 @@ def _load(args):
     from . import parse_vector
 
     tx = parse_vector(args.tx, 3, "--tx") if args.tx else None
-    return load_scene(args.scene, transmitter=tx)
+    return load_scene(scene_spec(args), transmitter=tx)
 
 
 def _show(args) -> int:

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import MmwsimError
 from ..files import write_text_atomic
+from .osm_area import add_area_arguments, scene_spec
 
 _TABLE_LIMIT = 20  # receivers printed in full; more get a summary
 
@@ -48,6 +49,7 @@ def register(sub) -> None:
     p.add_argument("--rrd", help="write a Rerun recording of the paths to this .rrd file")
     # Let "--rx -20,-6,1.5" through: argparse only treats plain numbers as negatives by default.
     p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eE+-]*$")
+    add_area_arguments(p)
     p.set_defaults(func=_run)
 
 
@@ -99,7 +101,7 @@ def _run(args) -> int:
                 raise MmwsimError(f"{flag} {t}: must end in {suffix}")
             if not t.parent.is_dir() or not os.access(t.parent, os.W_OK):
                 raise MmwsimError(f"{flag} {t}: folder {t.parent} does not exist or is not writable")
-    scene = load_scene(args.scene)
+    scene = load_scene(scene_spec(args))
     if tx is None:
         if scene.transmitter is None:
             raise MmwsimError(f"scene {scene.name!r} has no transmitter; give --tx X,Y,Z")

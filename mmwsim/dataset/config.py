@@ -157,7 +157,8 @@ def resolve_config(
     if tile_size > PDP_CHUNK and tile_size % PDP_CHUNK:
         raise MmwsimError(f"tile size above {PDP_CHUNK} must be a multiple of {PDP_CHUNK}, got {tile_size}")
     return GenerateConfig(
-        scene=str(scene_spec),
+        # a scene that knows its full spec (an OSM area with its CRS) is stored by it
+        scene=str(getattr(scene, "spec", None) or scene_spec),
         scene_sha256=scene_fingerprint(scene),
         frequency=float(scene.frequency),
         transmitter=tuple(float(v) for v in scene.transmitter.position),

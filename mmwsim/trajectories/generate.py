@@ -289,7 +289,11 @@ def generate(
         streets = None
         if kind == "vehicle" and vehicles_on_streets:
             if net is None:
-                net = StreetNetwork.from_footprints(footprints, bounds, street_half_width)
+                net = (
+                    StreetNetwork.from_scene(scene, street_half_width, bounds=bounds)
+                    if scene is not None
+                    else StreetNetwork.from_footprints(footprints, bounds, street_half_width)
+                )
             streets = net
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(code,)))
         pos, ev = generate_kind(None, model, n, length, rng, rate_hz, free_space=fs, streets=streets)

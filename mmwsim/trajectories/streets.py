@@ -1,5 +1,6 @@
 """A street network derived from a scene's free space: the medial axis of the open area between
-the buildings, kept where the street is wide enough for a vehicle, as a graph of centre lines.
+the buildings, kept where the street is wide enough for a vehicle, as a graph of centre lines
+(or, for a scene that carries its streets, e.g. an OpenStreetMap extract, those centre lines).
 
 The medial axis comes from the Voronoi diagram of points spaced along the footprint outlines
 (its edges are equidistant from two outline points); edges closer than ``half_width`` to a
@@ -106,9 +107,55 @@ class StreetNetwork:
         return cls._from_lines(lines)
 
     @classmethod
-    def from_scene(cls, scene, half_width: float = 4.0, **kw) -> StreetNetwork:
-        """Network of ``scene`` within its receiver-grid bounds (see :meth:`from_footprints`)."""
-        return cls.from_footprints(scene.footprints, scene.receivers.bounds, half_width, **kw)
+    def from_scene(
+        cls, scene, half_width: float = 4.0, bounds: np.ndarray | None = None, **kw
+    ) -> StreetNetwork:
+        """Network of ``scene`` within ``bounds`` (default its receiver-grid bounds).
+
+        A scene that carries street centre lines (``street_lines``, e.g. the highways of an
+        OpenStreetMap extract) uses them (:meth:`from_lines`); others derive them from the free
+        space (:meth:`from_footprints`).
+        """
+        bounds = scene.receivers.bounds if bounds is None else bounds
+        lines = getattr(scene, "street_lines", None)
+        if lines is not None:
+            return cls.from_lines(lines, scene.footprints, bounds, half_width)
+        return cls.from_footprints(scene.footprints, bounds, half_width, **kw)
+
+    @classmethod
+    def from_lines(
+        cls,
+        lines: list[np.ndarray],
+        footprints: list[shapely.Polygon],
+        bounds: np.ndarray,
+        half_width: float = 4.0,
+    ) -> StreetNetwork:
+        """Network of given centre lines (ways meeting at shared vertices connect there).
+
+        Parameters
+        ----------
+        lines : list of (k, 2) float
+            Polylines, metres.
+        footprints : list of shapely.Polygon
+            Buildings; centre lines closer than ``half_width`` to one are cut away.
+        bounds : (2, 2) float
+            Area [[xmin, ymin], [xmax, ymax]], metres.
+        half_width : float
+            Minimum distance of a centre line from any building, metres.
+        """
+        if not half_width > 0:
+            raise TrajectoryError("street network: half_width must be > 0")
+        geoms = [shapely.LineString(p) for p in lines if len(p) >= 2]
+        if not geoms:
+            raise TrajectoryError("the scene has no street centre lines for vehicles")
+        free = shapely.box(*np.asarray(bounds, dtype=np.float64).ravel())
+        if footprints:
+            free = free.difference(shapely.union_all(footprints).buffer(half_width))
+        cut = shapely.get_parts(shapely.intersection(np.array(geoms, dtype=object), free))
+        cut = cut[(shapely.get_type_id(cut) == 1) & (shapely.length(cut) > 1e-9)]
+        if len(cut) == 0:
+            raise TrajectoryError(f"no street centre line is {half_width:g} m clear of the buildings")
+        return cls._from_lines(cut)
 
     @classmethod
     def _from_lines(cls, lines: np.ndarray) -> StreetNetwork:

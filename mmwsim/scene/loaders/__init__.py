@@ -6,6 +6,7 @@ import importlib
 from pathlib import Path
 
 from ...errors import MmwsimError
+from ..osm.read import is_osm_path
 from ..scene import Scene
 from .mesh_file import load_mesh_file
 from .mitsuba import load_mitsuba
@@ -20,7 +21,9 @@ def load_scene(source: str | Path | Scene, transmitter: tuple[float, float, floa
     """A scene from a catalogue name (``default``, ``manhattan:seed=3``, ...) or a file.
 
     Files are read by suffix: ``.toml`` scene files, ``.xml`` Mitsuba scenes, any
-    mesh format trimesh reads. A :class:`Scene` is returned as it is.
+    mesh format trimesh reads. An OpenStreetMap file needs an area, so it is named as a
+    catalogue entry: ``osm:city.osm.pbf,bbox=S,W,N,E`` (or :func:`mmwsim.scene.osm.load_osm`).
+    A :class:`Scene` is returned as it is.
 
     Parameters
     ----------
@@ -32,6 +35,11 @@ def load_scene(source: str | Path | Scene, transmitter: tuple[float, float, floa
         return source
     text = str(source)
     path = Path(text)
+    if not text.startswith("osm:") and is_osm_path(text):
+        raise MmwsimError(
+            f"{text}: an OSM file needs an area: --bbox S,W,N,E or --center LAT,LON --size WxH"
+            f" (as a scene name: osm:{text},bbox=S,W,N,E)"
+        )
     suffix = path.suffix.lower()
     if path.exists() or suffix in {".toml", ".xml"} | _MESH_SUFFIXES:
         if path.is_dir():

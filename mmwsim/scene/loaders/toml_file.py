@@ -34,6 +34,9 @@ Example::
     spacing = 1.0
     shape = [401, 401]
     height = 1.5
+
+An ``[osm]`` table builds the scene from an OpenStreetMap extract instead, or besides the
+objects (see :mod:`mmwsim.scene.osm.toml_source`).
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from ...config import Int2, StrictModel, Vec2, Vec3, read_toml, validate
 from ...errors import MmwsimError
 from ...materials import Material, canonical_name, get_material
 from ..objects import ReceiverGrid, SceneObject, Transmitter
+from ..osm.toml_source import OsmSource, scene_with_osm
 from ..scene import Scene
 from .meshes import read_mesh, resolve_inside
 
@@ -112,7 +116,8 @@ class SceneFile(StrictModel):
     description: str = ""
     frequency_ghz: float = Field(default=28.0, gt=0.0)
     materials: dict[str, MaterialSpec] = Field(default_factory=dict)
-    objects: list[ObjectSpec] = Field(min_length=1)
+    objects: list[ObjectSpec] = Field(default_factory=list)
+    osm: OsmSource | None = None
     transmitter: TransmitterSpec | None = None
     receivers: ReceiversSpec | None = None
 
@@ -134,6 +139,8 @@ def load_toml(path: str | Path, transmitter: tuple[float, float, float] | None =
     """
     path = Path(path)
     spec = validate(SceneFile, read_toml(path), str(path))
+    if not spec.objects and spec.osm is None:
+        raise MmwsimError(f"{path}: missing key 'objects' (or an [osm] table)")
     custom: dict[str, Material] = {}  # user-defined, by their own name
     overrides: dict[str, Material] = {}  # built-ins with thickness / scattering, by canonical name
     for name, m in spec.materials.items():
@@ -177,6 +184,13 @@ def load_toml(path: str | Path, transmitter: tuple[float, float, float] | None =
         if min(r.shape) < 1:
             raise MmwsimError(f"{path}: key 'receivers.shape' must be positive, got {list(r.shape)}")
         grid = ReceiverGrid(r.origin, r.spacing, r.shape, r.height)
+    if spec.osm is not None:
+        try:
+            return scene_with_osm(
+                spec.osm, path, objects, tx, grid, spec.frequency_ghz * 1e9, spec.name or path.stem
+            )
+        except MmwsimError as e:
+            raise MmwsimError(str(e) if str(e).startswith(str(path)) else f"{path}: {e}") from None
     try:
         return Scene(
             objects,

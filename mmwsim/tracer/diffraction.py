@@ -29,12 +29,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._jit import njit
+from ._vec import add, dot, mirror, norm, row, scale, sub
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .paths import Interaction
-from .polarimetry import FaceMaterials, PathBatch, antenna_jones, reflection_chain, unit_legs
+from .polarimetry import FaceMaterials, PathBatch
 from .reflectors import Reflectors
-from .specular import EPS, SpecularSolver, mirror_chain
-from .utd import diffraction_matrices, keller_point
+from .specular import SpecularSolver, inside_box, mirror_chain, plane_point
+from .visibility import EPS
 from .wedges import Wedges
 
 __all__ = ["DiffractionStage", "DiffractionCandidates", "CONE_STEP"]
@@ -116,6 +118,7 @@ class DiffractionStage:
         self.rays_cast = 0
         self.candidates: DiffractionCandidates | None = None
         self._cells: dict[CellLattice, CandidateCells] = {}
+        self._src_imgs: np.ndarray | None = None
 
     # ------------------------------------------------------------------ candidates
     def cells(self, lattice: CellLattice) -> CandidateCells:
@@ -237,17 +240,13 @@ class DiffractionStage:
 
     def _visible(self, order: np.ndarray, seq: np.ndarray, wid: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Whether each edge point is reached from the transmitter through its sequence A."""
-        end = q + 1e-3 * self.wedges.bisector(wid)
+        end = q + EPS * self.wedges.bisector(wid)
         out = np.zeros(len(q), bool)
         for a in np.unique(order):
             m = np.flatnonzero(order == a)
-            refs = self.pre_sequences[a][seq[m]] if a else np.zeros((len(m), 0), np.int64)
-            imgs = mirror_chain(self.reflectors, self.tx, refs)
-            alive, pts = self.solver.unfold(imgs, refs, end[m])
-            good, _ = self.solver.check(
-                np.broadcast_to(self.tx, (len(alive), 3)), pts, refs[alive], end[m][alive]
-            )
-            out[m[alive[good]]] = True
+            seqs = self.pre_sequences[a]
+            images = mirror_chain(self.reflectors, self.tx, seqs)
+            out[m] = self.solver.reach(self.tx, seqs, images, seq[m], end[m])
         return out
 
     def _cone(self, pair: np.ndarray, q: np.ndarray, src: np.ndarray):
@@ -277,101 +276,141 @@ class DiffractionStage:
 
     # ------------------------------------------------------------------ exact paths
     def solve(self, cand_p: np.ndarray, rx_p: np.ndarray, rx: np.ndarray) -> list[PathBatch]:
-        """Exact diffracted paths for (candidate, receiver) pairs, grouped by (len A, len B)."""
-        c = self.candidates
-        out = []
-        nb = self.max_interactions
-        key = c.pre_len[cand_p] * nb + c.post_len[cand_p]
-        for k in np.unique(key):
-            m = key == k
-            out.append(self._solve_group(int(k // nb), int(k % nb), cand_p[m], rx_p[m], rx))
-        return [b for b in out if len(b)]
-
-    def _solve_group(self, a: int, b: int, cand_p: np.ndarray, rx_p: np.ndarray, rx: np.ndarray) -> PathBatch:
+        """Exact diffracted paths for (candidate, receiver) pairs, grouped by interaction count."""
         c, w, refl = self.candidates, self.wedges, self.reflectors
-        pre, post, wid = c.pre[cand_p, :a], c.post[cand_p, :b], c.wedge[cand_p]
-        tx = self.tx
-        src_imgs = mirror_chain(refl, tx, pre)
-        s = src_imgs[:, -1] if a else np.broadcast_to(tx, (len(cand_p), 3))
-        # Receiver's image through B reversed: the unfolded end of the path after Q.
-        t = mirror_chain(refl, rx[rx_p], post[:, ::-1])[:, -1] if b else rx[rx_p]
-        x, _ = keller_point(s, t, w.origin[wid], w.edge[wid])
-        ok = (x >= 0.0) & (x <= w.length[wid])
-        q = w.point(wid, np.where(ok, x, 0.0))
-        k_in = q - s
-        k_out = t - q
-        s_in = np.linalg.norm(k_in, axis=1)
-        s_out = np.linalg.norm(k_out, axis=1)
-        k_in /= np.maximum(s_in, 1e-300)[:, None]
-        k_out /= np.maximum(s_out, 1e-300)[:, None]
-        # Rays along the edge have no Keller cone (UTD is singular there).
-        ok &= np.abs(np.einsum("ij,ij->i", k_in, w.edge[wid])) < 1.0 - 1e-12
-        # Both ends in the exterior region 0 < phi < n pi.
-        nphi = w.n[wid] * np.pi
-        phi_in = w.angle(wid, -k_in)
-        phi_out = w.angle(wid, k_out)
-        ok &= (phi_in > 0) & (phi_in < nphi) & (phi_out > 0) & (phi_out < nphi)
-        sel = np.flatnonzero(ok)
-        cand_p, rx_p, wid, q, k_in, k_out, s_in, s_out, pre, post = (
-            v[sel] for v in (cand_p, rx_p, wid, q, k_in, k_out, s_in, s_out, pre, post)
+        width = c.pre.shape[1]
+        if self._src_imgs is None:
+            self._src_imgs = np.zeros((len(c), max(width, 1), 3))
+            for a in range(1, width + 1):
+                m = c.pre_len == a
+                if m.any():
+                    self._src_imgs[m, :a] = mirror_chain(refl, self.tx, c.pre[m, :a])
+        k = self.max_interactions
+        ok = np.zeros(len(cand_p), bool)
+        points = np.zeros((len(cand_p), k, 3))
+        length = np.zeros(len(cand_p))
+        _geometry(
+            cand_p, rx_p, rx, self.tx, c.pre, c.post, c.pre_len, c.post_len, c.wedge, self._src_imgs,
+            w.origin, w.edge, w.length, w.t0, w.n0, w.n, refl.normal, refl.offset, refl.lo, refl.hi,
+            ok, points, length,
+        )  # fmt: skip
+        idx = np.flatnonzero(ok)
+        cand_p, rx_p, points, length = cand_p[idx], rx_p[idx], points[idx], length[idx]
+        a_len, b_len, wid = c.pre_len[cand_p], c.post_len[cand_p], c.wedge[cand_p]
+        order = a_len + 1 + b_len
+        n = len(idx)
+        cols = np.arange(k)[None, :]
+        types = np.where(cols < order[:, None], Interaction.REFLECTION, Interaction.NONE).astype(np.int8)
+        types[np.arange(n), a_len] = Interaction.DIFFRACTION
+        # Reflector of every reflection: A's before the diffraction, B's after it.
+        pre = (
+            np.take_along_axis(c.pre[cand_p], np.minimum(cols, max(width - 1, 0)), axis=1) if width else None
         )
-        src_imgs = src_imgs[sel]
-        q_off = q + 1e-3 * w.bisector(wid)
-        # Before Q: back from Q through the transmitter's images.
-        alive, pts_a = self.solver.unfold(src_imgs, pre, q_off) if a else (np.arange(len(sel)), src_imgs)
-        keep = np.zeros(len(sel), bool)
-        keep[alive] = True
-        pts_a_full = np.zeros((len(sel), a, 3))
-        pts_a_full[alive] = pts_a
-        # After Q: Q's images through B, back from the receiver.
-        q_imgs = mirror_chain(refl, q, post)
-        alive_b, pts_b = self.solver.unfold(q_imgs, post, rx[rx_p]) if b else (np.arange(len(sel)), q_imgs)
-        keep_b = np.zeros(len(sel), bool)
-        keep_b[alive_b] = True
-        pts_b_full = np.zeros((len(sel), b, 3))
-        pts_b_full[alive_b] = pts_b
-        idx = np.flatnonzero(keep & keep_b)
-        good_a, faces_a = self.solver.check(
-            np.broadcast_to(self.tx, (len(idx), 3)), pts_a_full[idx], pre[idx], q_off[idx]
+        after = np.clip(cols - a_len[:, None] - 1, 0, max(width - 1, 0))
+        post = np.take_along_axis(c.post[cand_p], after, axis=1) if width else None
+        refs = np.where(cols < a_len[:, None], pre, post) if width else np.zeros((n, k), np.int64)
+        refs = np.where(types == Interaction.REFLECTION, refs, -1)
+        offsets = w.bisector(wid)
+        good, faces = self.solver.check(self.tx, rx[rx_p], points, order, types, refs, offsets)
+        g = np.flatnonzero(good)
+        faces, wid, a_len = faces[g], wid[g], a_len[g]
+        faces[np.arange(len(g)), a_len] = w.face0[wid]
+        return self.solver.finish(
+            self.tx, rx, rx_p[g], length[g], points[g], order[g], types[g], faces, wid, w
         )
-        good_b, faces_b = self.solver.check(q_off[idx], pts_b_full[idx], post[idx], rx[rx_p[idx]])
-        good = good_a & good_b
-        idx = idx[good]
-        faces_a, faces_b = faces_a[good], faces_b[good]
-        m = len(idx)
-        rx_p, wid, q = rx_p[idx], wid[idx], q[idx]
-        s_in, s_out = s_in[idx], s_out[idx]
-        pa, pb = pts_a_full[idx], pts_b_full[idx]
-        points = np.concatenate([pa, q[:, None], pb], axis=1)
-        faces = np.concatenate([faces_a, w.face0[wid][:, None], faces_b], axis=1)
-        types = np.full((m, a + 1 + b), Interaction.REFLECTION, np.int8)
-        types[:, a] = Interaction.DIFFRACTION
-        nodes = np.concatenate([np.broadcast_to(self.tx, (m, 1, 3)), points, rx[rx_p][:, None]], axis=1)
-        k_legs, _ = unit_legs(nodes)
-        before = reflection_chain(k_legs[:, : a + 1], refl.normal[pre[idx]], faces_a, self.materials)
-        after = reflection_chain(k_legs[:, a + 1 :], refl.normal[post[idx]], faces_b, self.materials)
-        d = self._coefficient(wid, k_legs[:, a], k_legs[:, a + 1], s_in, s_out)
-        jones, aod, aoa = antenna_jones(after @ d @ before, k_legs[:, 0], k_legs[:, -1])
-        spread = self.materials.wavelength / (4.0 * np.pi * np.sqrt(s_in * s_out * (s_in + s_out)))
-        jones *= spread[:, None, None]
-        return PathBatch(rx_p, s_in + s_out, points, faces, types, jones, aod, aoa)
 
-    def _coefficient(self, wid, k_in, k_out, s_in, s_out) -> np.ndarray:
-        w = self.wedges
-        return diffraction_matrices(
-            k_in,
-            k_out,
-            w.edge[wid],
-            w.t0[wid],
-            w.n0[wid],
-            w.tn[wid],
-            w.nn[wid],
-            s_in,
-            s_out,
-            self.materials.wavelength,
-            self.materials.surface(w.face0[wid]),
-            self.materials.surface(w.facen[wid]),
-        )
+
+@njit(cache=True)
+def _geometry(
+    cand_p, rx_p, rx, tx, pre, post, pre_len, post_len, wedge, src_imgs,
+    w_origin, w_edge, w_length, w_t0, w_n0, w_n, normal, offset, lo, hi,
+    ok, points, length,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Diffraction point and reflection points of every (candidate, receiver) pair.
+
+    Sets ``ok`` where the diffraction point lies on the edge, both ends are in the wedge's
+    exterior, and every reflection point lies inside its segment and its reflector's
+    bounds; ``points`` gets [reflections before, Q, reflections after] and ``length`` the
+    unfolded length. Blockage is checked afterwards with Embree.
+    """
+    t = (float(tx[0]), float(tx[1]), float(tx[2]))
+    for i in range(len(cand_p)):
+        c = cand_p[i]
+        a = pre_len[c]
+        b = post_len[c]
+        w = wedge[c]
+        s = row(src_imgs[c], a - 1) if a else t
+        # The receiver's image through B reversed: the unfolded end after Q.
+        end = row(rx, rx_p[i])
+        img = end
+        for j in range(b - 1, -1, -1):
+            r = post[c, j]
+            img = mirror(img, row(normal, r), offset[r])
+        o = row(w_origin, w)
+        e = row(w_edge, w)
+        so = sub(s, o)
+        to = sub(img, o)
+        sz = dot(so, e)
+        tz = dot(to, e)
+        da = norm(sub(so, scale(e, sz)))
+        db = norm(sub(to, scale(e, tz)))
+        if not (da + db > 0.0):
+            continue
+        x = (db * sz + da * tz) / (da + db)
+        if not (0.0 <= x <= w_length[w]):
+            continue
+        q = add(o, scale(e, x))
+        v_in = sub(q, s)
+        v_out = sub(img, q)
+        s_in = norm(v_in)
+        s_out = norm(v_out)
+        if not (s_in > 0.0 and s_out > 0.0):
+            continue
+        if abs(dot(v_in, e)) >= (1.0 - 1e-12) * s_in:
+            continue  # along the edge: no Keller cone
+        # Both ends in the exterior region 0 < phi < n pi.
+        nphi = w_n[w] * np.pi
+        t0 = row(w_t0, w)
+        n0 = row(w_n0, w)
+        phi_in = np.arctan2(-dot(v_in, n0), -dot(v_in, t0)) % (2.0 * np.pi)
+        phi_out = np.arctan2(dot(v_out, n0), dot(v_out, t0)) % (2.0 * np.pi)
+        if not (0.0 < phi_in < nphi and 0.0 < phi_out < nphi):
+            continue
+        good = True
+        # Reflections before Q: back from Q through the transmitter's images.
+        nxt = q
+        for j in range(a - 1, -1, -1):
+            r = pre[c, j]
+            im = row(src_imgs[c], j)
+            p = plane_point(nxt, im, row(normal, r), offset[r])
+            if not inside_box(p, lo, hi, r):
+                good = False
+                break
+            points[i, j, 0], points[i, j, 1], points[i, j, 2] = p
+            nxt = p
+        if not good:
+            continue
+        points[i, a, 0], points[i, a, 1], points[i, a, 2] = q
+        # Reflections after Q: back from the receiver through Q's images.
+        qim = q
+        for j in range(b):
+            r = post[c, j]
+            qim = mirror(qim, row(normal, r), offset[r])
+            points[i, a + 1 + j, 0], points[i, a + 1 + j, 1], points[i, a + 1 + j, 2] = qim
+        nxt = end
+        for j in range(b - 1, -1, -1):
+            r = post[c, j]
+            im = row(points[i], a + 1 + j)
+            p = plane_point(nxt, im, row(normal, r), offset[r])
+            if not inside_box(p, lo, hi, r):
+                good = False
+                break
+            points[i, a + 1 + j, 0], points[i, a + 1 + j, 1], points[i, a + 1 + j, 2] = p
+            nxt = p
+        if not good:
+            continue
+        ok[i] = True
+        length[i] = s_in + s_out
 
 
 def _distance_to_segment(

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ._jit import njit
+from ._vec import cross, norm, scale
 
 if TYPE_CHECKING:
     from ..materials import Material
@@ -230,6 +231,24 @@ def reflection_scalar(eps: complex, thickness: float, roughness: float, cos_thet
             r_tm = r_tm * (1.0 - ph) / (1.0 - r_tm * r_tm * ph)
     keep = np.sqrt(1.0 - roughness * roughness)
     return r_te * keep, r_tm * keep
+
+
+@njit(cache=True)
+def bounce_scalar(k_in, k_out, normal, r_te, r_tm, out):  # pragma: no cover - compiled
+    """:func:`~bounce_matrices` of one bounce into ``out`` (3, 3) complex."""
+    e_s = cross(k_in, normal)
+    ns = norm(e_s)
+    if ns < 1e-9:
+        # Normal incidence: any s direction will do, both coefficients describe one field.
+        alt = (1.0, 0.0, 0.0) if abs(normal[0]) < 0.9 else (0.0, 1.0, 0.0)
+        e_s = cross(alt, normal)
+        ns = norm(e_s)
+    e_s = scale(e_s, 1.0 / ns)
+    e_pi = cross(k_in, e_s)
+    e_po = cross(k_out, e_s)
+    for a in range(3):
+        for b in range(3):
+            out[a, b] = r_te * e_s[a] * e_s[b] + r_tm * e_po[a] * e_pi[b]
 
 
 def direction_angles(k: np.ndarray) -> np.ndarray:

@@ -13,9 +13,27 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..constants import SPEED_OF_LIGHT
-from .fresnel import Surface, bounce_matrices, direction_angles, spherical_basis
+from ._jit import njit
+from ._vec import dot, norm, row, scale, sub, unit
+from .fresnel import (
+    Surface,
+    bounce_matrices,
+    bounce_scalar,
+    direction_angles,
+    reflection_scalar,
+    spherical_basis,
+)
+from .utd import diffraction_scalar
 
-__all__ = ["PathBatch", "FaceMaterials", "spectral_norm", "unit_legs", "reflection_chain", "antenna_jones"]
+__all__ = [
+    "PathBatch",
+    "FaceMaterials",
+    "path_fields",
+    "spectral_norm",
+    "unit_legs",
+    "reflection_chain",
+    "antenna_jones",
+]
 
 
 @dataclass
@@ -165,3 +183,180 @@ def antenna_jones(
     w = np.stack([th_t, ph_t], axis=2)  # (m, 3, 2): columns are the TX basis
     u = np.stack([th_r, ph_r], axis=1)  # (m, 2, 3): rows are the RX basis
     return u @ field @ w, aod, aoa
+
+
+def path_fields(
+    tx: np.ndarray,
+    rx: np.ndarray,
+    points: np.ndarray,
+    order: np.ndarray,
+    types: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray,
+    wedge: np.ndarray,
+    wedges,
+    materials: FaceMaterials,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Field of every path from its interaction points, in the antennas' bases.
+
+    One compiled loop for every kind of path: each reflection multiplies the field by
+    its bounce matrix (:meth:`Surface.reflection` of its triangle), the diffraction by
+    the UTD coefficient (:func:`~mmwsim.tracer.utd.diffraction_matrices`); the spreading
+    is ``lambda / (4 pi L)`` for specular paths and ``lambda / (4 pi sqrt(s s' (s + s')))``
+    for a diffracted one.
+
+    Parameters
+    ----------
+    tx : (3,) float64
+    rx : (m, 3) float64
+        Each path's receiver, metres.
+    points : (m, k, 3) float64
+        Interaction points (the first ``order`` of each row), metres.
+    order : (m,) int
+    types : (m, k) int8
+        :class:`~mmwsim.tracer.paths.Interaction` of each interaction.
+    faces : (m, k) int64
+        Triangle of each reflection (its material).
+    normals : (m, k, 3) float64
+        Plane normal at each reflection.
+    wedge : (m,) int64
+        Wedge of the path's diffraction (-1 for none).
+    wedges : Wedges or None
+    materials : FaceMaterials
+
+    Returns
+    -------
+    jones : (m, 2, 2) complex128
+    aod, aoa : (m, 2) float64
+    """
+    m = len(order)
+    jones = np.empty((m, 2, 2), np.complex128)
+    angles = np.empty((m, 4))
+    if wedges is None or not wedges.count:
+        w = np.zeros((1, 3))
+        wa = (w, w, w, w, w, w, np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.int64))
+    else:
+        wa = (
+            wedges.edge,
+            wedges.t0,
+            wedges.n0,
+            wedges.tn,
+            wedges.nn,
+            wedges.origin,
+            wedges.n,
+            wedges.face0,
+            wedges.facen,
+        )
+    surf = materials.objects
+    path_fields_into(
+        np.asarray(tx, np.float64),
+        np.ascontiguousarray(rx, np.float64),
+        np.ascontiguousarray(points, np.float64),
+        np.asarray(order, np.int64),
+        np.asarray(types, np.int8),
+        np.asarray(faces, np.int64),
+        np.ascontiguousarray(normals, np.float64),
+        np.asarray(wedge, np.int64),
+        *wa,
+        materials.owner,
+        surf.eps,
+        surf.thickness,
+        surf.roughness,
+        materials.wavelength,
+        jones,
+        angles,
+    )
+    return jones, angles[:, :2], angles[:, 2:]
+
+
+@njit(cache=True)
+def _spherical_rows(theta, phi):  # pragma: no cover - compiled
+    ct, st, cp, sp = np.cos(theta), np.sin(theta), np.cos(phi), np.sin(phi)
+    return (ct * cp, ct * sp, -st), (-sp, cp, 0.0)
+
+
+@njit(cache=True)
+def path_fields_into(
+    tx, rx, points, order, types, faces, normals, wedge,
+    w_edge, w_t0, w_n0, w_tn, w_nn, w_origin, w_n, w_face0, w_facen,
+    owner, eps, thick, rough, wavelength, jones, angles,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Kernel of :func:`path_fields` (see there)."""
+    field = np.empty((3, 3), np.complex128)
+    step = np.empty((3, 3), np.complex128)
+    tmp = np.empty((3, 3), np.complex128)
+    m3 = np.empty((3, 3), np.complex128)
+    r0 = np.empty((2, 2), np.complex128)
+    rn = np.empty((2, 2), np.complex128)
+    t = (float(tx[0]), float(tx[1]), float(tx[2]))
+    for i in range(len(order)):
+        k = order[i]
+        end = row(rx, i)
+        # Unfolded lengths before each node, and the total.
+        total = 0.0
+        prev = t
+        for j in range(k + 1):
+            nxt = end if j == k else row(points[i], j)
+            total += norm(sub(nxt, prev))
+            prev = nxt
+        for a in range(3):
+            for b in range(3):
+                field[a, b] = 1.0 if a == b else 0.0
+        prev = t
+        walked = 0.0
+        spread = wavelength / (4.0 * np.pi * total)
+        first = unit(sub(end if k == 0 else row(points[i], 0), t))
+        for j in range(k):
+            p = row(points[i], j)
+            nxt = end if j == k - 1 else row(points[i], j + 1)
+            leg = norm(sub(p, prev))
+            k_in = scale(sub(p, prev), 1.0 / leg)
+            k_out = unit(sub(nxt, p))
+            walked += leg
+            if types[i, j] == 2:
+                w = wedge[i]
+                s_in = walked
+                s_out = total - walked
+                o0 = owner[w_face0[w]]
+                on = owner[w_facen[w]]
+                diffraction_scalar(
+                    k_in, k_out, row(w_edge, w), row(w_t0, w), row(w_n0, w), row(w_tn, w), row(w_nn, w),
+                    s_in, s_out, wavelength, eps[o0], thick[o0], rough[o0], eps[on], thick[on], rough[on],
+                    m3, r0, rn, step,
+                )  # fmt: skip
+                spread = wavelength / (4.0 * np.pi * np.sqrt(s_in * s_out * (s_in + s_out)))
+            else:
+                nrm = row(normals[i], j)
+                o = owner[faces[i, j]]
+                r_te, r_tm = reflection_scalar(
+                    eps[o], thick[o], rough[o], min(abs(dot(k_in, nrm)), 1.0), wavelength
+                )
+                bounce_scalar(k_in, k_out, nrm, r_te, r_tm, step)
+            for a in range(3):
+                for b in range(3):
+                    acc = 0.0j
+                    for c in range(3):
+                        acc += step[a, c] * field[c, b]
+                    tmp[a, b] = acc
+            field[:, :] = tmp
+            prev = p
+        last = unit(sub(end, prev)) if k else first
+        th_d = np.arccos(min(max(first[2], -1.0), 1.0))
+        ph_d = np.arctan2(first[1], first[0])
+        th_a = np.arccos(min(max(-last[2], -1.0), 1.0))
+        ph_a = np.arctan2(-last[1], -last[0])
+        wt, wp = _spherical_rows(th_d, ph_d)
+        ut, up = _spherical_rows(th_a, ph_a)
+        for a in range(2):
+            ua = ut if a == 0 else up
+            for b in range(2):
+                wb = wt if b == 0 else wp
+                acc = 0.0j
+                for c in range(3):
+                    for d in range(3):
+                        acc += ua[c] * field[c, d] * wb[d]
+                jones[i, a, b] = acc * spread
+        angles[i, 0] = th_d
+        angles[i, 1] = ph_d
+        angles[i, 2] = th_a
+        angles[i, 3] = ph_a

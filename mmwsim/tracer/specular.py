@@ -17,14 +17,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import RayCaster
+from ._jit import njit
+from ._vec import add, dot, norm, row, scale, sub
 from .paths import Interaction
-from .polarimetry import FaceMaterials, PathBatch, antenna_jones, reflection_chain, unit_legs
+from .polarimetry import FaceMaterials, PathBatch, path_fields, spectral_norm
 from .reflectors import Reflectors
+from .visibility import EPS, check_paths
 
-__all__ = ["SpecularSolver", "mirror_chain", "EPS"]
-
-EPS = 1e-3
-"""Offset of leg origins off a reflecting plane, and clearance kept before a leg's end, metres."""
+__all__ = ["SpecularSolver", "mirror_chain", "plane_point", "inside_box", "EPS"]
 # Reflection points may sit this far outside a reflector's bounds (float64 noise) before
 # Embree decides on the exact face.
 _BOX_TOL = 1e-6
@@ -56,7 +56,7 @@ def mirror_chain(reflectors: Reflectors, source: np.ndarray, seqs: np.ndarray) -
 
 
 class SpecularSolver:
-    """Unfolding and checking of specular reflection chains.
+    """Exact specular paths: unfolding by images, leg checks, fields.
 
     Parameters
     ----------
@@ -64,114 +64,57 @@ class SpecularSolver:
     caster : RayCaster
         Embree queries over the scene's triangles (face ids index ``reflectors.face_reflector``).
     materials : FaceMaterials
+    floor : float
+        Paths whose amplitude (largest singular value of the Jones matrix) is below this
+        are dropped (0 keeps all).
     """
 
-    def __init__(self, reflectors: Reflectors, caster: RayCaster, materials: FaceMaterials):
+    def __init__(
+        self, reflectors: Reflectors, caster: RayCaster, materials: FaceMaterials, floor: float = 0.0
+    ):
         self.reflectors = reflectors
         self.caster = caster
         self.materials = materials
+        self.floor = float(floor)
         self.rays_cast = 0
 
-    # ------------------------------------------------------------------ geometry
-    def unfold(self, images: np.ndarray, refs: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Reflection points of chains ending at ``end``, back through the source's images.
-
-        Parameters
-        ----------
-        images : (m, k, 3) float64
-            Images of each chain's source after each prefix of its reflections.
-        refs : (m, k) int
-            Reflectors of each chain.
-        end : (m, 3) float64
-            Where each chain ends (a receiver, or a diffraction point), metres.
-
-        Returns
-        -------
-        alive : (m',) int64
-            Chains whose reflection points lie inside their segments and reflectors' bounds.
-        points : (m', k, 3) float64
-            Their reflection points.
-        """
-        refl = self.reflectors
-        m, k = refs.shape
-        alive = np.arange(m)
-        pts = np.empty((m, k, 3))
-        nxt = end
-        # The leg towards image j crosses plane j at the reflection point.
-        for j in range(k - 1, -1, -1):
-            r = refs[alive, j]
-            img = images[alive, j]
-            n = refl.normal[r]
-            den = np.einsum("ij,ij->i", n, img - nxt)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = (refl.offset[r] - np.einsum("ij,ij->i", n, nxt)) / den
-                p = nxt + t[:, None] * (img - nxt)
-            ok = (t > 1e-12) & (t < 1.0 - 1e-12)
-            ok &= np.all((p >= refl.lo[r] - _BOX_TOL) & (p <= refl.hi[r] + _BOX_TOL), axis=1)
-            alive, nxt = alive[ok], p[ok]
-            pts[alive, j] = nxt
-        return alive, pts[alive]
-
     def check(
-        self, start: np.ndarray, points: np.ndarray, refs: np.ndarray, end: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Whether each chain's legs are clear: every reflection lands on its reflector, the end is reached.
-
-        Parameters
-        ----------
-        start : (m, 3) float64
-            Where each chain starts (the transmitter, or just off a diffraction point).
-        points : (m, k, 3) float64
-            Reflection points.
-        refs : (m, k) int
-        end : (m, 3) float64
-            Where each chain ends; the last leg stops :data:`EPS` short of it.
-
-        Returns
-        -------
-        good : (m,) bool
-        faces : (m, k) int64
-            Triangle hit at each reflection (-1 where none was).
-        """
-        refl = self.reflectors
-        m, k = refs.shape
-        good = np.ones(m, bool)
-        faces = np.full((m, k), -1, np.int64)
-        if k:
-            origins = np.empty((m, k, 3))
-            origins[:, 0] = start
-            if k > 1:
-                prev = points[:, :-1]
-                n = refl.normal[refs[:, :-1]]
-                side = np.sign(np.einsum("mki,mki->mk", points[:, 1:] - prev, n))
-                origins[:, 1:] = prev + (side * EPS)[..., None] * n
-            v = points - origins
-            dist = np.linalg.norm(v, axis=2)
-            _, f = self.caster.intersect(origins.reshape(-1, 3), (v / dist[..., None]).reshape(-1, 3))
-            self.rays_cast += m * k
-            f = f.reshape(m, k)
-            hit_ref = np.where(f >= 0, refl.face_reflector[np.maximum(f, 0)], -1)
-            good &= np.all(hit_ref == refs, axis=1)
-            faces[:] = f
-            last = points[:, -1]
-            n = refl.normal[refs[:, -1]]
-            side = np.sign(np.einsum("mi,mi->m", end - last, n))
-            o = last + (side * EPS)[:, None] * n
-        else:
-            o = start
-        v = end - o
-        dist = np.linalg.norm(v, axis=1)
-        sel = np.flatnonzero(good & (dist > EPS))
-        blocked = self.caster.occluded(o[sel], v[sel] / dist[sel, None], dist[sel] - EPS)
-        self.rays_cast += len(sel)
-        good[sel[blocked]] = False
-        good &= dist > EPS
+        self, tx: np.ndarray, rx: np.ndarray, points: np.ndarray, order: np.ndarray, types: np.ndarray,
+        refs: np.ndarray, offsets: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """:func:`.visibility.check_paths` with this scene's Embree back-end; counts the rays."""
+        good, faces, n = check_paths(
+            self.caster, self.reflectors.face_reflector, self.reflectors.normal, tx, rx, points, order, types,
+            refs, offsets,
+        )  # fmt: skip
+        self.rays_cast += n
         return good, faces
+
+    def finish(
+        self, tx: np.ndarray, rx: np.ndarray, rx_p: np.ndarray, length: np.ndarray, points: np.ndarray,
+        order: np.ndarray, types: np.ndarray, faces: np.ndarray, wedge: np.ndarray, wedges=None,
+    ) -> list[PathBatch]:  # fmt: skip
+        """Fields of valid paths, the gain floor, and one batch per interaction count."""
+        refl = self.reflectors
+        refs = np.where(faces >= 0, refl.face_reflector[np.maximum(faces, 0)], 0)
+        jones, aod, aoa = path_fields(
+            tx, rx[rx_p], points, order, types, faces, refl.normal[refs], wedge, wedges, self.materials
+        )
+        keep = spectral_norm(jones) >= self.floor if self.floor > 0 else np.ones(len(order), bool)
+        out = []
+        for k in np.unique(order[keep]):
+            m = keep & (order == k)
+            out.append(
+                PathBatch(
+                    rx_p[m], length[m], points[m, :k], faces[m, :k], types[m, :k], jones[m], aod[m], aoa[m]
+                )
+            )
+        return out
 
     # ------------------------------------------------------------------ paths
     def solve(
         self, tx: np.ndarray, seqs: np.ndarray, images: np.ndarray, seq_p: np.ndarray, rx_p: np.ndarray, rx
-    ) -> PathBatch:
+    ) -> list[PathBatch]:
         """Exact specular paths for (sequence, receiver) pairs; returns the valid ones.
 
         Parameters
@@ -188,42 +131,110 @@ class SpecularSolver:
             Receivers, metres.
         """
         k = seqs.shape[1]
+        refl = self.reflectors
+        m = len(seq_p)
+        ok = np.zeros(m, bool)
+        points = np.zeros((m, k, 3))
+        length = np.zeros(m)
+        _geometry(
+            seq_p, rx_p, rx, seqs, images, refl.normal, refl.offset, refl.lo, refl.hi, ok, points, length
+        )
+        idx = np.flatnonzero(ok)
+        seq_p, rx_p, points, length = seq_p[idx], rx_p[idx], points[idx], length[idx]
         refs = seqs[seq_p]
-        alive, pts = self.unfold(images[seq_p], refs, rx[rx_p])
-        seq_p, rx_p, refs = seq_p[alive], rx_p[alive], refs[alive]
-        good, faces = self.check(np.broadcast_to(tx, (len(alive), 3)), pts, refs, rx[rx_p])
-        seq_p, rx_p, refs, pts, faces = seq_p[good], rx_p[good], refs[good], pts[good], faces[good]
-        nodes = np.concatenate([np.broadcast_to(tx, (len(rx_p), 1, 3)), pts, rx[rx_p][:, None]], axis=1)
-        k_legs, _ = unit_legs(nodes)
-        field = reflection_chain(k_legs, self.reflectors.normal[refs], faces, self.materials)
-        length = np.linalg.norm(rx[rx_p] - images[seq_p, k - 1], axis=1)
-        jones, aod, aoa = antenna_jones(field, k_legs[:, 0], k_legs[:, -1])
-        jones *= (self.materials.wavelength / (4.0 * np.pi * length))[:, None, None]
-        return PathBatch(
-            rx_p, length, pts, faces, np.full(faces.shape, Interaction.REFLECTION, np.int8), jones, aod, aoa
+        order = np.full(len(idx), k, np.int64)
+        types = np.full((len(idx), k), Interaction.REFLECTION, np.int8)
+        good, faces = self.check(tx, rx[rx_p], points, order, types, refs, np.zeros((len(idx), 3)))
+        g = np.flatnonzero(good)
+        return self.finish(
+            tx, rx, rx_p[g], length[g], points[g], order[g], types[g], faces[g], np.full(len(g), -1, np.int64)
         )
 
-    def line_of_sight(self, tx: np.ndarray, rx: np.ndarray) -> PathBatch:
+    def reach(
+        self, tx: np.ndarray, seqs: np.ndarray, images: np.ndarray, seq_p: np.ndarray, ends: np.ndarray
+    ) -> np.ndarray:
+        """Whether each point ``ends`` (m, 3) is reached from ``tx`` through sequence ``seqs[seq_p]``.
+
+        The exact specular chain is unfolded and its legs checked, as for a receiver; ``seqs``
+        may have zero columns (line of sight).
+        """
+        m, k = len(seq_p), seqs.shape[1]
+        ok = np.zeros(m, bool)
+        points = np.zeros((m, k, 3))
+        if k:
+            refl = self.reflectors
+            _geometry(
+                seq_p, np.arange(m), ends, seqs, images, refl.normal, refl.offset, refl.lo, refl.hi, ok, points,
+                np.zeros(m),
+            )  # fmt: skip
+        else:
+            ok[:] = True
+        idx = np.flatnonzero(ok)
+        good, _ = self.check(
+            tx, ends[idx], points[idx], np.full(len(idx), k, np.int64),
+            np.full((len(idx), k), Interaction.REFLECTION, np.int8), seqs[seq_p[idx]], np.zeros((len(idx), 3)),
+        )  # fmt: skip
+        ok[idx] = good
+        return ok
+
+    def line_of_sight(self, tx: np.ndarray, rx: np.ndarray) -> list[PathBatch]:
         """Unblocked direct paths from ``tx`` to receivers ``rx`` (n, 3)."""
-        v = rx - tx
-        dist = np.linalg.norm(v, axis=1)
-        ok = dist > EPS
-        d = np.zeros_like(v)
-        d[ok] = v[ok] / dist[ok, None]
-        blocked = self.caster.occluded(np.broadcast_to(tx, v.shape)[ok], d[ok], dist[ok] - EPS)
-        self.rays_cast += int(ok.sum())
-        idx = np.flatnonzero(ok)[~blocked]
-        m = len(idx)
-        field = np.broadcast_to(np.eye(3, dtype=complex), (m, 3, 3))
-        jones, aod, aoa = antenna_jones(field, d[idx], d[idx])
-        jones = jones * (self.materials.wavelength / (4.0 * np.pi * dist[idx]))[:, None, None]
-        return PathBatch(
-            idx,
-            dist[idx],
-            np.zeros((m, 0, 3)),
-            np.zeros((m, 0), np.int64),
-            np.zeros((m, 0), np.int8),
-            jones,
-            aod,
-            aoa,
+        m = len(rx)
+        order = np.zeros(m, np.int64)
+        empty = np.zeros((m, 0), np.int64)
+        good, _ = self.check(
+            tx, rx, np.zeros((m, 0, 3)), order, empty.astype(np.int8), empty, np.zeros((m, 3))
         )
+        g = np.flatnonzero(good)
+        length = np.linalg.norm(rx[g] - tx, axis=1)
+        return self.finish(
+            tx, rx, g, length, np.zeros((len(g), 0, 3)), order[g], empty[g].astype(np.int8), empty[g],
+            np.full(len(g), -1, np.int64),
+        )  # fmt: skip
+
+
+@njit(cache=True)
+def _geometry(seq_p, rx_p, rx, seqs, images, normal, offset, lo, hi, ok, points, length):  # pragma: no cover
+    """Reflection points of (sequence, receiver) pairs, back from the receiver through the images.
+
+    Sets ``ok`` where every point lies strictly inside its segment and inside its
+    reflector's bounds (Embree then decides on the exact triangle).
+    """
+    k = seqs.shape[1]
+    for i in range(len(seq_p)):
+        s = seq_p[i]
+        end = row(rx, rx_p[i])
+        nxt = end
+        good = True
+        for j in range(k - 1, -1, -1):
+            r = seqs[s, j]
+            p = plane_point(nxt, row(images[s], j), row(normal, r), offset[r])
+            if not inside_box(p, lo, hi, r):
+                good = False
+                break
+            points[i, j, 0], points[i, j, 1], points[i, j, 2] = p
+            nxt = p
+        if good:
+            ok[i] = True
+            length[i] = norm(sub(end, row(images[s], k - 1)))
+
+
+@njit(cache=True, inline="always")
+def plane_point(p, img, n, d):  # pragma: no cover - compiled
+    """Where the segment p -> img crosses the plane n . x = d (NaN if not strictly inside it)."""
+    den = dot(n, sub(img, p))
+    if den == 0.0:
+        return (np.nan, np.nan, np.nan)
+    t = (d - dot(n, p)) / den
+    if not (1e-12 < t < 1.0 - 1e-12):
+        return (np.nan, np.nan, np.nan)
+    return add(p, scale(sub(img, p), t))
+
+
+@njit(cache=True, inline="always")
+def inside_box(p, lo, hi, r):  # pragma: no cover - compiled
+    """Whether point p lies within reflector r's bounds, with float64 slack (NaN is outside)."""
+    for a in range(3):
+        if not (lo[r, a] - _BOX_TOL <= p[a] <= hi[r, a] + _BOX_TOL):
+            return False
+    return True

@@ -23,7 +23,7 @@ from ..scene import Scene
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .diffraction import CONE_STEP, DiffractionStage
 from .paths import Paths
-from .polarimetry import FaceMaterials, PathBatch, spectral_norm
+from .polarimetry import FaceMaterials, PathBatch
 from .reflectors import Reflectors, group_reflectors
 from .shooting import Shot, shoot
 from .specular import SpecularSolver, mirror_chain
@@ -107,7 +107,8 @@ class Tracer:
         self.wavelength = self.materials.wavelength
         self.reflectors: Reflectors = group_reflectors(scene)
         self.caster = scene.ray_caster
-        self.solver = SpecularSolver(self.reflectors, self.caster, self.materials)
+        floor = 0.0 if self.min_gain_db is None else 10.0 ** (self.min_gain_db / 20.0)
+        self.solver = SpecularSolver(self.reflectors, self.caster, self.materials, floor)
         k = self.max_reflections
         self.wedges: Wedges | None = find_wedges(scene) if diffraction and k and scene.n_triangles else None
         lit_faces = None
@@ -196,13 +197,13 @@ class Tracer:
             raise MmwsimError(f"receiver positions must have shape (n, 3), got {rx.shape}")
         if not np.all(np.isfinite(rx)):
             raise MmwsimError("receiver positions contain NaN or infinite coordinates")
-        batches = [self.solver.line_of_sight(self.tx, rx)]
+        batches = self.solver.line_of_sight(self.tx, rx)
         if len(rx):
             lattice = self._lattice(rx)
             for k in range(1, self.max_reflections + 1):
                 seqs, imgs = self.shot.sequences[k], self._images[k]
                 for seq_p, rx_p in self._cells(k, lattice).pairs(rx, _PAIR_BATCH):
-                    batches.append(self.solver.solve(self.tx, seqs, imgs, seq_p, rx_p, rx))
+                    batches += self.solver.solve(self.tx, seqs, imgs, seq_p, rx_p, rx)
             if self.diffraction is not None:
                 for cand_p, rx_p in self.diffraction.cells(lattice).pairs(rx, _PAIR_BATCH):
                     batches += self.diffraction.solve(cand_p, rx_p, rx)
@@ -240,9 +241,6 @@ class Tracer:
     # ------------------------------------------------------------------ assembly
     def _assemble(self, rx: np.ndarray, batches: list[PathBatch]) -> Paths:
         kmax = self.max_reflections
-        if self.min_gain_db is not None:
-            floor = 10.0 ** (self.min_gain_db / 20.0)
-            batches = [b.select(spectral_norm(b.jones) >= floor) for b in batches]
         n = sum(len(b) for b in batches)
         rx_index = np.concatenate([b.rx for b in batches]).astype(np.int64)
         length = np.concatenate([b.length for b in batches])
@@ -262,10 +260,17 @@ class Tracer:
         aoa = np.concatenate([b.aoa for b in batches])
         objects = np.full(faces.shape, -1, np.int64)
         objects[faces >= 0] = self.scene.face_object[faces[faces >= 0]]
-        # Deterministic order: receiver, then delay, then interaction count, faces and kinds.
-        keys = [types[:, j] for j in range(kmax - 1, -1, -1)]
-        keys += [faces[:, j] for j in range(kmax - 1, -1, -1)] + [order, np.round(length, 9), rx_index]
-        srt = np.lexsort(keys) if n else np.zeros(0, np.int64)
+        # Deterministic order: receiver, then delay; exact ties (symmetric geometry) by
+        # interaction count, faces and kinds.
+        delay = np.round(length, 9)
+        srt = np.lexsort((delay, rx_index)) if n else np.zeros(0, np.int64)
+        tie = np.flatnonzero((rx_index[srt][1:] == rx_index[srt][:-1]) & (delay[srt][1:] == delay[srt][:-1]))
+        if len(tie):
+            members = np.unique(np.concatenate([tie, tie + 1]))
+            sub = srt[members]
+            keys = [types[sub, j] for j in range(kmax - 1, -1, -1)]
+            keys += [faces[sub, j] for j in range(kmax - 1, -1, -1)] + [order[sub], delay[sub], rx_index[sub]]
+            srt[members] = sub[np.lexsort(keys)]
         return Paths(
             tx=self.tx.copy(),
             rx=rx.copy(),

@@ -65,11 +65,12 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import njit
-from ._vec import cross, dot, norm, row, scale, sub, unit
-from .fresnel import Surface, reflection_scalar
+from ._vec import cross, dot, row, scale, sub, unit
+from .fresnel import Surface, bounce_scalar, reflection_scalar
 
 __all__ = [
     "ON_BOUNDARY",
+    "diffraction_scalar",
     "transition_function",
     "diffraction_matrices",
     "keller_point",
@@ -269,24 +270,6 @@ def _edge_basis(e, k, incident):  # pragma: no cover - compiled
     if incident:
         phi = scale(phi, -1.0)
     return cross(k, phi), phi
-
-
-@njit(cache=True)
-def bounce_scalar(k_in, k_out, normal, r_te, r_tm, out):  # pragma: no cover - compiled
-    """:func:`~mmwsim.tracer.fresnel.bounce_matrices` of one bounce into ``out`` (3, 3) complex."""
-    e_s = cross(k_in, normal)
-    ns = norm(e_s)
-    if ns < 1e-9:
-        # Normal incidence: any s direction will do, both coefficients describe one field.
-        alt = (1.0, 0.0, 0.0) if abs(normal[0]) < 0.9 else (0.0, 1.0, 0.0)
-        e_s = cross(alt, normal)
-        ns = norm(e_s)
-    e_s = scale(e_s, 1.0 / ns)
-    e_pi = cross(k_in, e_s)
-    e_po = cross(k_out, e_s)
-    for a in range(3):
-        for b in range(3):
-            out[a, b] = r_te * e_s[a] * e_s[b] + r_tm * e_po[a] * e_pi[b]
 
 
 @njit(cache=True)

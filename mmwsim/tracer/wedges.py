@@ -24,6 +24,7 @@ region is ``0 < phi < n pi`` and ``phi = n pi`` lies along ``tn``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -95,20 +96,15 @@ class Wedges:
         """(m, 3) points at distance ``x`` (m,) along wedges ``wedge`` (m,), metres."""
         return self.origin[wedge] + x[:, None] * self.edge[wedge]
 
-    def bisector(self, wedge: np.ndarray) -> np.ndarray:
-        """(m, 3) unit vectors into the middle of the exterior region of wedges ``wedge``."""
-        b = self.n0[wedge] + self.nn[wedge]
+    @cached_property
+    def bisectors(self) -> np.ndarray:
+        """(w, 3) unit vectors into the middle of each wedge's exterior region."""
+        b = self.n0 + self.nn
         return b / np.linalg.norm(b, axis=1, keepdims=True)
 
-    def angle(self, wedge: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        """(m,) angle ``phi`` in [0, 2 pi) of directions (m, 3) about the edge, from the 0-face.
-
-        The direction's component along the edge is ignored; ``0 < phi < n pi`` is the
-        exterior region.
-        """
-        x = np.einsum("ij,ij->i", direction, self.t0[wedge])
-        y = np.einsum("ij,ij->i", direction, self.n0[wedge])
-        return np.mod(np.arctan2(y, x), 2.0 * np.pi)
+    def bisector(self, wedge: np.ndarray) -> np.ndarray:
+        """(m, 3) unit vectors into the middle of the exterior region of wedges ``wedge``."""
+        return self.bisectors[wedge]
 
     def wedges_of_facets(self, facets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(index into ``facets``, wedge) pairs of the wedges bordering each facet (m,)."""

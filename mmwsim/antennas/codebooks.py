@@ -15,7 +15,7 @@ import numpy as np
 
 from ..constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
 from ..errors import MmwsimError
-from .patterns import Isotropic, Pattern, PyramidalHorn
+from .patterns import Isotropic, Pattern, PyramidalHorn, horn_fields
 from .spherical import FieldFromBasis
 
 __all__ = ["Codebook", "RotatingHorn", "PlanarArrayCodebook", "make_codebook"]
@@ -81,10 +81,7 @@ class RotatingHorn(Codebook):
         return self.azimuth0 + self.step * np.arange(self.n_beams)
 
     def field_basis(self, r, th, ph):
-        out = np.empty((self.n_beams,) + r.shape[:-1] + (2,), dtype=np.complex128)
-        for i, horn in enumerate(self.horns):
-            out[i] = horn.field_basis(r, th, ph)
-        return out
+        return horn_fields(self.horns, r, th, ph)
 
     def describe(self) -> dict[str, Any]:
         h = self.horns[0]

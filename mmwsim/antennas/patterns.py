@@ -14,6 +14,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import brentq
 
+from .._jit import njit
 from ..constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
 from ..errors import MmwsimError
 from .spherical import POLARISATIONS, FieldFromBasis
@@ -110,19 +111,34 @@ class ShortDipole(Pattern):
 # ----------------------------------------------------------------------------- pyramidal horn
 
 
-def _cosine_factor(x: np.ndarray) -> np.ndarray:
+@njit(cache=True, inline="always")
+def _cosine_aperture(x):  # pragma: no cover - compiled
     """Normalised transform of a cosine aperture: pi^2 cos(x) / (pi^2 - 4 x^2), x = k a u / 2."""
-    den = np.pi**2 - 4.0 * x * x
-    near = np.abs(den) < 1e-9
-    return np.where(near, np.pi / 4.0, np.pi**2 * np.cos(x) / np.where(near, 1.0, den))
+    den = np.pi * np.pi - 4.0 * x * x
+    return np.pi / 4.0 if abs(den) < 1e-9 else np.pi * np.pi * np.cos(x) / den
 
 
-def _uniform_factor(y: np.ndarray) -> np.ndarray:
+@njit(cache=True, inline="always")
+def _uniform_aperture(y):  # pragma: no cover - compiled
     """Normalised transform of a uniform aperture: sin(y) / y."""
-    return np.sinc(y / np.pi)
+    return 1.0 if y == 0.0 else np.sin(y) / y
 
 
-@lru_cache(maxsize=8)
+@njit(cache=True)
+def _factors(x, y):  # pragma: no cover - compiled
+    out = np.empty(x.shape)
+    xf, yf, of = x.ravel(), y.ravel(), out.ravel()
+    for i in range(len(xf)):
+        of[i] = _cosine_aperture(xf[i]) * _uniform_aperture(yf[i])
+    return out
+
+
+def _aperture_factor(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Cosine-aperture factor of ``x`` times uniform-aperture factor of ``y`` (broadcast arrays)."""
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    return _factors(np.ascontiguousarray(x), np.ascontiguousarray(y))
+
+
 def _gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.polynomial.legendre.leggauss(n)
 
@@ -146,7 +162,7 @@ def _aperture_directivity(ka: float, kb: float, n_mu: int = 150, n_chi: int = 25
     chi = np.linspace(0.0, 2.0 * np.pi, n_chi, endpoint=False)
     s = np.sqrt(1.0 - mu * mu)[:, None]
     u_h, u_e = s * np.cos(chi), s * np.sin(chi)
-    p = (_cosine_factor(0.5 * ka * u_h) * _uniform_factor(0.5 * kb * u_e)) ** 2
+    p = _aperture_factor(0.5 * ka * u_h, 0.5 * kb * u_e) ** 2
     p *= ((1.0 + mu[:, None]) / 2.0) ** 2
     total = float(wmu @ p.sum(axis=1)) * (2.0 * np.pi / n_chi)
     return 4.0 * np.pi / total
@@ -265,16 +281,49 @@ class PyramidalHorn(Pattern):
         """Power pattern normalised to 1 on boresight, for unit vectors r (..., 3)."""
         x = 0.5 * self.k * self.width * (r @ self.h_dir)
         y = 0.5 * self.k * self.height * (r @ self.e_dir)
-        return (_cosine_factor(x) * _uniform_factor(y) * (1.0 + r @ self.boresight) / 2.0) ** 2
+        return (_aperture_factor(x, y) * (1.0 + r @ self.boresight) / 2.0) ** 2
 
     def field_basis(self, r, th, ph):
-        amp = self._amp * _cosine_factor(0.5 * self.k * self.width * (r @ self.h_dir))
-        amp *= _uniform_factor(0.5 * self.k * self.height * (r @ self.e_dir))
-        # Huygens source: equivalent electric and magnetic currents combine into
-        # ((e . th + h . ph), (e . ph - h . th)) / 2, i.e. (1 + cos psi) / 2 on the E and H planes.
-        e_th = 0.5 * (th @ self.e_dir + ph @ self.h_dir)
-        e_ph = 0.5 * (ph @ self.e_dir - th @ self.h_dir)
-        return np.stack([amp * e_th, amp * e_ph], axis=-1).astype(np.complex128)
+        return horn_fields([self], r, th, ph)[0]
+
+
+def horn_fields(horns: list[PyramidalHorn], r: np.ndarray, th: np.ndarray, ph: np.ndarray) -> np.ndarray:
+    """Fields of several horns at once: (n_horns, ..., 2) complex128 for directions ``r`` (..., 3).
+
+    The aperture model of :class:`PyramidalHorn`, evaluated for every horn and direction in
+    one compiled pass (a rotating codebook's 32 beams cost about one numpy evaluation).
+    ``th``, ``ph`` are the spherical basis vectors at ``r``.
+    """
+    shape = r.shape[:-1]
+    rr, tt, pp = (np.ascontiguousarray(np.asarray(v, np.float64).reshape(-1, 3)) for v in (r, th, ph))
+    params = np.array([[h._amp, 0.5 * h.k * h.width, 0.5 * h.k * h.height] for h in horns])
+    e_dir = np.array([h.e_dir for h in horns], dtype=np.float64)
+    h_dir = np.array([h.h_dir for h in horns], dtype=np.float64)
+    out = np.empty((len(horns), len(rr), 2), np.complex128)
+    _horn_fields_into(rr, tt, pp, params, e_dir, h_dir, out)
+    return out.reshape((len(horns),) + shape + (2,))
+
+
+@njit(cache=True)
+def _horn_fields_into(r, th, ph, params, e_dir, h_dir, out):  # pragma: no cover - compiled
+    for b in range(len(params)):
+        amp0, half_kw, half_kh = params[b, 0], params[b, 1], params[b, 2]
+        ex, ey, ez = e_dir[b, 0], e_dir[b, 1], e_dir[b, 2]
+        hx, hy, hz = h_dir[b, 0], h_dir[b, 1], h_dir[b, 2]
+        for i in range(len(r)):
+            x = half_kw * (r[i, 0] * hx + r[i, 1] * hy + r[i, 2] * hz)
+            y = half_kh * (r[i, 0] * ex + r[i, 1] * ey + r[i, 2] * ez)
+            amp = amp0 * _cosine_aperture(x) * _uniform_aperture(y)
+            # Huygens source: equivalent electric and magnetic currents combine into
+            # ((e . th + h . ph), (e . ph - h . th)) / 2, i.e. (1 + cos psi) / 2 on the E and H planes.
+            e_th = 0.5 * (
+                th[i, 0] * ex + th[i, 1] * ey + th[i, 2] * ez + ph[i, 0] * hx + ph[i, 1] * hy + ph[i, 2] * hz
+            )
+            e_ph = 0.5 * (
+                ph[i, 0] * ex + ph[i, 1] * ey + ph[i, 2] * ez - th[i, 0] * hx - th[i, 1] * hy - th[i, 2] * hz
+            )
+            out[b, i, 0] = amp * e_th
+            out[b, i, 1] = amp * e_ph
 
 
 @lru_cache(maxsize=64)

@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import njit
 from ..antennas import Codebook, Isotropic, Pattern
 from ..antennas.spherical import spherical_basis
 from ..errors import MmwsimError
-from ..tracer.paths import Paths
+from ..tracer.paths import PathKind, Paths
 
 __all__ = [
     "SAMPLE_RATE",
@@ -86,7 +87,7 @@ def channel_taps(
     n_bins: int = N_BINS,
     band_limited: bool = False,
 ) -> np.ndarray:
-    """Sampled complex channel per receiver and beam.
+    """Sampled complex channel per receiver and beam (every path summed coherently).
 
     Parameters
     ----------
@@ -104,30 +105,14 @@ def channel_taps(
     -------
     (n_rx, n_beams, n_bins) complex128
     """
-    if not sample_rate > 0 or n_bins < 1:
-        raise MmwsimError(f"need a positive sample rate and bin count, got {sample_rate!r}, {n_bins!r}")
-    n_beams = amplitudes.shape[0]
-    n_rx = paths.n_rx
-    size = n_beams * n_rx * n_bins
-    x = paths.delay * sample_rate  # delay in bins
-    base = np.floor(x).astype(np.int64)
-    shifts = range(-SINC_TAPS, SINC_TAPS + 1) if band_limited else (0,)
-    re = np.zeros(size)
-    im = np.zeros(size)
-    beam_off = (np.arange(n_beams, dtype=np.int64) * n_rx)[:, None]
-    for s in shifts:
-        k = base + s
-        keep = (k >= 0) & (k < n_bins)
-        if not keep.any():
-            continue
-        a = amplitudes[:, keep]
-        if band_limited:
-            a = a * np.sinc(k[keep] + 0.5 - x[keep])
-        idx = ((beam_off + paths.rx_index[keep]) * n_bins + k[keep]).ravel()
-        re += np.bincount(idx, weights=a.real.ravel(), minlength=size)
-        im += np.bincount(idx, weights=a.imag.ravel(), minlength=size)
-    h = (re + 1j * im).reshape(n_beams, n_rx, n_bins)
-    return h.transpose(1, 0, 2)
+    _check_sampling(sample_rate, n_bins)
+    h = np.zeros((paths.n_rx, amplitudes.shape[0], n_bins), np.complex128)
+    power = np.zeros(h.shape)
+    _bin_into(
+        h, power, paths.rx_index, paths.delay * sample_rate, np.ascontiguousarray(amplitudes),
+        np.zeros(paths.n_paths, np.bool_), band_limited, SINC_TAPS,
+    )  # fmt: skip
+    return h
 
 
 def power_delay_profile(
@@ -140,6 +125,9 @@ def power_delay_profile(
     band_limited: bool = False,
 ) -> np.ndarray:
     """Per-beam power-delay profiles, dBm.
+
+    Paths in one bin add as complex amplitudes; diffusely scattered contributions
+    (:attr:`~mmwsim.tracer.PathKind.DIFFUSE`) add in power, since their phases are random.
 
     Parameters
     ----------
@@ -163,8 +151,57 @@ def power_delay_profile(
     (n_rx, n_beams, n_bins) float32
         Received power per bin, dBm; ``-inf`` where no path arrives (no signal).
     """
-    amps = beam_amplitudes(paths, codebook, rx_pattern)
-    h = channel_taps(paths, amps, sample_rate, n_bins, band_limited)
-    power = h.real**2 + h.imag**2
-    with np.errstate(divide="ignore"):
-        return (tx_power_dbm + 10.0 * np.log10(power)).astype(np.float32)
+    _check_sampling(sample_rate, n_bins)
+    out = np.empty((paths.n_rx, codebook.n_beams, n_bins), np.float32)
+    incoherent = paths.kind() == PathKind.DIFFUSE
+    x = paths.delay * sample_rate
+    offsets = paths.offsets()
+    # Receivers in blocks, so that the complex accumulators stay small (in cache).
+    for r0 in range(0, paths.n_rx, _RX_BLOCK):
+        r1 = min(r0 + _RX_BLOCK, paths.n_rx)
+        h = np.zeros((r1 - r0, codebook.n_beams, n_bins), np.complex128)
+        power = np.zeros(h.shape)
+        for a in range(offsets[r0], offsets[r1], _PATH_CHUNK):
+            sl = slice(a, min(a + _PATH_CHUNK, offsets[r1]))
+            amps = beam_amplitudes(paths.select_range(sl), codebook, rx_pattern)
+            _bin_into(h, power, paths.rx_index[sl] - r0, x[sl], amps, incoherent[sl], band_limited, SINC_TAPS)
+        _to_dbm(h, power, float(tx_power_dbm), out[r0:r1])
+    return out
+
+
+_RX_BLOCK = 256  # receivers whose complex profiles are accumulated at once (about 1 MB each)
+_PATH_CHUNK = 1 << 15  # paths whose beam amplitudes are held at once (about 1 kB each)
+
+
+def _check_sampling(sample_rate: float, n_bins: int) -> None:
+    if not (sample_rate > 0 and np.isfinite(sample_rate)) or int(n_bins) != n_bins or n_bins < 1:
+        raise MmwsimError(f"need a positive sample rate and bin count, got {sample_rate!r}, {n_bins!r}")
+
+
+@njit(cache=True)
+def _bin_into(h, power, rx, x, amps, incoherent, band_limited, taps):  # pragma: no cover - compiled
+    """Add each path's beam amplitudes into its receiver's bins (coherently, or in power)."""
+    n_beams, n_bins = h.shape[1], h.shape[2]
+    for p in range(len(rx)):
+        r = rx[p]
+        base = int(np.floor(x[p]))
+        lo, hi = (base - taps, base + taps) if band_limited else (base, base)
+        for k in range(max(lo, 0), min(hi, n_bins - 1) + 1):
+            w = np.sinc(k + 0.5 - x[p]) if band_limited else 1.0
+            for b in range(n_beams):
+                a = amps[b, p] * w
+                if incoherent[p]:
+                    power[r, b, k] += a.real * a.real + a.imag * a.imag
+                else:
+                    h[r, b, k] += a
+
+
+@njit(cache=True)
+def _to_dbm(h, power, tx_power_dbm, out):  # pragma: no cover - compiled
+    for r in range(h.shape[0]):
+        for b in range(h.shape[1]):
+            for k in range(h.shape[2]):
+                v = h[r, b, k]
+                p = v.real * v.real + v.imag * v.imag + power[r, b, k]
+                # float32 logarithm: the profile is stored as float16 anyway.
+                out[r, b, k] = tx_power_dbm + 10.0 * np.log10(np.float32(p)) if p > 0.0 else -np.inf

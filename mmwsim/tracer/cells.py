@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._jit import njit
+from .._jit import njit
 
 __all__ = ["CellLattice", "CandidateCells", "LegSet", "mark_cells"]
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._jit import njit
+from .._jit import njit
 from ._vec import add, dot, mirror, norm, row, scale, sub
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .paths import Interaction

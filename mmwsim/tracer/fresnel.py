@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ._jit import njit
+from .._jit import njit
 from ._vec import cross, norm, scale
 
 if TYPE_CHECKING:

@@ -165,6 +165,13 @@ class Paths:
         with np.errstate(divide="ignore"):
             return 20.0 * np.log10(np.abs(self.amplitude(tx_pol, rx_pol)))
 
+    def select_range(self, sl: slice) -> Paths:
+        """The paths in the slice ``sl`` of the path axis (views, no copies), receivers unchanged."""
+        kw = {f.name: getattr(self, f.name) for f in fields(self)}
+        for name in _PER_PATH:
+            kw[name] = kw[name][sl]
+        return Paths(**kw)
+
     def select(self, mask: np.ndarray) -> Paths:
         """The paths where ``mask`` (n_paths,) is true, receivers unchanged."""
         kw = {f.name: getattr(self, f.name) for f in fields(self)}

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._jit import njit
 from ..constants import SPEED_OF_LIGHT
-from ._jit import njit
 from ._vec import dot, norm, row, scale, sub, unit
 from .fresnel import (
     Surface,

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import njit
 from ..geometry import RayCaster
-from ._jit import njit
 from ._vec import add, dot, norm, row, scale, sub
 from .paths import Interaction
 from .polarimetry import FaceMaterials, PathBatch, path_fields, spectral_norm

@@ -64,7 +64,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit
+from .._jit import njit
 from ._vec import cross, dot, row, scale, sub, unit
 from .fresnel import Surface, bounce_scalar, reflection_scalar
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import njit
 from ..geometry import RayCaster
-from ._jit import njit
 from ._vec import add, dot, norm, row, scale, sub
 
 __all__ = ["EPS", "check_paths"]

@@ -7,9 +7,10 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from ..errors import MmwsimError
+from ..stages import STAGES
 from .config import DEFAULT_PATH_CHUNK, DEFAULT_TILE, CodebookConfig, GenerateConfig, resolve_config
 from .store import StoreWriter
-from .tiles import TileResult, compute_tile
+from .tiles import TileResult, build_plan, compute_tile, install_plan
 
 __all__ = ["generate", "run_tiles"]
 
@@ -107,11 +108,14 @@ def generate(
         bar = _bar(cfg, writer.tiles_done, progress)
         try:
             for result in run_tiles(cfg, todo, workers, scheduler):
-                writer.write(result)
+                STAGES.add(result.stages)
+                with STAGES("store"):
+                    writer.write(result)
                 bar.update(cfg.tile_range(result.tile)[1] - cfg.tile_range(result.tile)[0])
         finally:
             bar.close()
-        writer.finish()
+        with STAGES("store"):
+            writer.finish()
     if rrd is not None:
         from .record import record_dataset
         from .store import Dataset
@@ -140,12 +144,15 @@ def run_tiles(
 ) -> Iterator[TileResult]:
     """Compute ``tiles`` on the chosen executor and yield the results in tile order.
 
-    At most two tiles per worker are in flight, which bounds memory.
+    With several workers, this process finds the tracer's candidates once and hands them
+    to every worker. At most two tiles per worker are in flight, which bounds memory.
     """
     text = cfg.model_dump_json()
     tiles = list(tiles)
+    if not tiles:
+        return
     if scheduler is not None:
-        yield from _dask(text, tiles, scheduler)
+        yield from _dask(cfg, text, tiles, scheduler)
     elif workers == 1:
         for t in tiles:
             yield compute_tile(text, t)
@@ -153,8 +160,14 @@ def run_tiles(
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
+        plan = build_plan(cfg)
         # spawn: Embree and BLAS thread pools do not survive fork reliably
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(
+            workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=install_plan,
+            initargs=(cfg.hash(), plan),
+        ) as pool:
             yield from _windowed(lambda t: pool.submit(compute_tile, text, t), tiles, 2 * workers)
 
 
@@ -173,7 +186,7 @@ def _windowed(submit, tiles: list[int], depth: int) -> Iterator[TileResult]:
         yield result
 
 
-def _dask(text: str, tiles: list[int], address: str) -> Iterator[TileResult]:
+def _dask(cfg: GenerateConfig, text: str, tiles: list[int], address: str) -> Iterator[TileResult]:
     try:
         from distributed import Client
     except ImportError:
@@ -184,6 +197,7 @@ def _dask(text: str, tiles: list[int], address: str) -> Iterator[TileResult]:
         raise MmwsimError(f"cannot reach the Dask scheduler at {address!r}: {e}") from None
     try:
         n = max(1, sum(client.nthreads().values()))
-        yield from _windowed(lambda t: client.submit(compute_tile, text, t, pure=False), tiles, 2 * n)
+        plan = client.scatter(build_plan(cfg), broadcast=True)
+        yield from _windowed(lambda t: client.submit(compute_tile, text, t, plan, pure=False), tiles, 2 * n)
     finally:
         client.close()

@@ -14,12 +14,14 @@ import numpy as np
 
 from ..antennas import Codebook, make_codebook
 from ..fingerprints import power_delay_profile, receive_pattern
+from ..stages import STAGES
 from ..tracer.paths import Paths
 from .config import GenerateConfig
 
-__all__ = ["TileResult", "compute_tile", "make_codebook_from"]
+__all__ = ["TileResult", "compute_tile", "make_codebook_from", "build_plan", "install_plan"]
 
 _CONTEXT: dict[str, tuple] = {}
+_PLANS: dict = {}  # content hash -> TracerPlan handed over by the executor
 _LOCK = threading.Lock()  # executors may run tiles on threads of one process; the tracer is not shared
 
 
@@ -37,6 +39,8 @@ class TileResult:
         Flat path arrays in receiver order: delay (m,) float64 s, jones (m, 2, 2) complex64,
         aod / aoa (m, 2) float32 rad, order (m,) int8, objects / faces (m, K) int32,
         points (m, K, 3) float32 m, types (m, K) int8, with K = max(max_reflections, 1).
+    stages : dict of str to float
+        Seconds this tile's process spent per stage since its last tile (for benchmarks).
     """
 
     tile: int
@@ -45,6 +49,7 @@ class TileResult:
     pdp: np.ndarray
     count: np.ndarray
     paths: dict[str, np.ndarray]
+    stages: dict[str, float]
 
 
 def make_codebook_from(cfg: GenerateConfig) -> Codebook:
@@ -78,23 +83,50 @@ def _context(cfg: GenerateConfig, config_json: str):
         if cfg.diffuse is not None:
             scene = scene.with_scattering(cfg.diffuse)
         grid = ReceiverGrid(cfg.grid_origin, cfg.grid_spacing, cfg.grid_shape, cfg.grid_height)
-        tracer = Tracer(
-            scene,
-            np.asarray(cfg.transmitter),
-            cfg.max_reflections,
-            cfg.n_rays,
-            diffraction=cfg.diffraction,
-            min_gain_db=cfg.min_path_gain_db,
-        )
+        if key in _PLANS:
+            tracer = Tracer.from_plan(scene, _PLANS[key])
+        else:
+            tracer = Tracer(
+                scene,
+                np.asarray(cfg.transmitter),
+                cfg.max_reflections,
+                cfg.n_rays,
+                diffraction=cfg.diffraction,
+                min_gain_db=cfg.min_path_gain_db,
+            )
         ctx = (scene, grid, tracer, make_codebook_from(cfg), receive_pattern(cfg.rx_gain_dbi))
         _CONTEXT.clear()  # one configuration per process at a time
         _CONTEXT[key] = ctx
     return ctx
 
 
-def compute_tile(config_json: str, tile: int) -> TileResult:
-    """Trace and profile the receivers of ``tile``; deterministic in (config, tile)."""
+def build_plan(cfg: GenerateConfig):
+    """The tracer's candidates for the whole grid of ``cfg`` (a :class:`~mmwsim.tracer.TracerPlan`).
+
+    Built once by the process that hands out tiles, so that workers shoot no rays.
+    """
+    with _LOCK:
+        _, grid, tracer, _, _ = _context(cfg, cfg.model_dump_json())
+        plan = tracer.plan(grid.positions())
+        _CONTEXT.clear()  # this process computes no tiles: drop the rays
+    return plan
+
+
+def install_plan(key: str, plan) -> None:
+    """Make this process build its tracer for configuration ``key`` from ``plan`` (executor initializer)."""
+    _PLANS.clear()
+    _PLANS[key] = plan
+
+
+def compute_tile(config_json: str, tile: int, plan=None) -> TileResult:
+    """Trace and profile the receivers of ``tile``; deterministic in (config, tile).
+
+    ``plan`` (from :func:`build_plan`) spares this process the candidate search; the
+    result is the same with or without it.
+    """
     cfg = GenerateConfig.model_validate_json(config_json)
+    if plan is not None and cfg.hash() not in _PLANS:
+        install_plan(cfg.hash(), plan)
     with _LOCK:
         scene, grid, tracer, codebook, rx_pattern = _context(cfg, config_json)
         start, stop = cfg.tile_range(tile)
@@ -108,9 +140,10 @@ def compute_tile(config_json: str, tile: int) -> TileResult:
         paths = _empty_paths(cfg, rx)
     else:
         paths = _widen(traced, rx, inside[traced.rx_index], k)
-    pdp = power_delay_profile(
-        paths, codebook, rx_pattern, cfg.tx_power_dbm, cfg.sample_rate, cfg.n_bins, cfg.band_limited
-    )
+    with STAGES("PDP"):
+        pdp = power_delay_profile(
+            paths, codebook, rx_pattern, cfg.tx_power_dbm, cfg.sample_rate, cfg.n_bins, cfg.band_limited
+        )
     lo, hi = cfg.bins
     valid = outdoors & np.any(pdp[:, :, lo:hi] >= cfg.threshold_dbm, axis=(1, 2))
     arrays = {
@@ -125,7 +158,7 @@ def compute_tile(config_json: str, tile: int) -> TileResult:
         "types": paths.types.astype(np.int8),
     }
     count = np.bincount(paths.rx_index, minlength=n).astype(np.int32)
-    return TileResult(tile, outdoors, valid, pdp.astype(np.float16), count, arrays)
+    return TileResult(tile, outdoors, valid, pdp.astype(np.float16), count, arrays, STAGES.take())
 
 
 def _empty_paths(cfg: GenerateConfig, rx: np.ndarray) -> Paths:

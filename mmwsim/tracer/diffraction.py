@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import njit
+from ..stages import STAGES
 from ._vec import add, dot, mirror, norm, row, scale, sub
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .paths import Interaction
@@ -124,10 +125,12 @@ class DiffractionStage:
     def cells(self, lattice: CellLattice) -> CandidateCells:
         """Receiver cells of every candidate (launches the cone rays once per lattice)."""
         if lattice not in self._cells:
-            cands, legs = self._launch()
+            with STAGES("diffraction candidates"):
+                cands, legs = self._launch()
             if self.candidates is None:
                 self.candidates = cands
-            self._cells[lattice] = mark_cells(legs, len(cands), lattice)
+            with STAGES("candidate cells"):
+                self._cells[lattice] = mark_cells(legs, len(cands), lattice)
         return self._cells[lattice]
 
     def _launch(self) -> tuple[DiffractionCandidates, LegSet]:

@@ -16,10 +16,13 @@ receivers on the same lattice of cells, fixed in space.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..errors import MmwsimError
 from ..scene import Scene
+from ..stages import STAGES
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .diffraction import CONE_STEP, DiffractionStage
 from .paths import Paths
@@ -29,7 +32,7 @@ from .shooting import Shot, shoot
 from .specular import SpecularSolver, mirror_chain
 from .wedges import Wedges, find_wedges
 
-__all__ = ["Tracer", "trace", "DEFAULT_RAYS", "MIN_GAIN_DB"]
+__all__ = ["Tracer", "TracerPlan", "trace", "DEFAULT_RAYS", "MIN_GAIN_DB"]
 
 DEFAULT_RAYS = 4_000_000
 """Rays launched from the transmitter by default (mean spacing 1.8 mrad)."""
@@ -39,6 +42,40 @@ floor of the reference data set (-150 dBm received at 30 dBm, 0 dBi)."""
 
 # (candidate, receiver) pairs solved per batch: bounds the temporaries (about 1 kB per pair).
 _PAIR_BATCH = 1 << 19
+
+
+@dataclass
+class TracerPlan:
+    """What a tracer learned from its rays, for one lattice of receiver cells (picklable).
+
+    Attributes
+    ----------
+    tx : (3,) float64
+    max_reflections, n_rays : int
+    cell_size, cone_step : float
+    min_gain_db : float or None
+    diffraction_on : bool
+    lattice : CellLattice
+    sequences : list of (n_k, k) int64
+        Specular candidate sequences by order.
+    cells : list of CandidateCells
+        Their cells (index 0 unused).
+    diffraction : DiffractionCandidates or None
+    diffraction_cells : CandidateCells or None
+    """
+
+    tx: np.ndarray
+    max_reflections: int
+    n_rays: int
+    cell_size: float
+    cone_step: float
+    min_gain_db: float | None
+    diffraction_on: bool
+    lattice: CellLattice
+    sequences: list
+    cells: list
+    diffraction: object
+    diffraction_cells: object
 
 
 class Tracer:
@@ -67,6 +104,9 @@ class Tracer:
     min_gain_db : float or None
         Paths whose gain is below this for every pair of polarisations are dropped, dB;
         None keeps every path.
+    plan : TracerPlan, optional
+        Candidates found by another tracer of the same scene and settings (:meth:`plan`):
+        no rays are shot, the receivers must lie in the plan's lattice.
     """
 
     def __init__(
@@ -79,6 +119,7 @@ class Tracer:
         diffraction: bool = True,
         cone_step: float = CONE_STEP,
         min_gain_db: float | None = MIN_GAIN_DB,
+        plan: TracerPlan | None = None,
     ):
         if tx is None:
             if scene.transmitter is None:
@@ -97,6 +138,9 @@ class Tracer:
             raise MmwsimError(f"cone_step must be in (0, 0.5] radians, got {cone_step}")
         if min_gain_db is not None and not np.isfinite(min_gain_db):
             raise MmwsimError(f"min_gain_db must be a finite number of dB or None, got {min_gain_db}")
+        self._plan = plan
+        self.n_rays = int(n_rays)
+        self.cone_step = float(cone_step)
         self.scene = scene
         self.tx = tx
         self.min_gain_db = None if min_gain_db is None else float(min_gain_db)
@@ -110,7 +154,10 @@ class Tracer:
         floor = 0.0 if self.min_gain_db is None else 10.0 ** (self.min_gain_db / 20.0)
         self.solver = SpecularSolver(self.reflectors, self.caster, self.materials, floor)
         k = self.max_reflections
-        self.wedges: Wedges | None = find_wedges(scene) if diffraction and k and scene.n_triangles else None
+        with STAGES("wedges"):
+            self.wedges: Wedges | None = (
+                find_wedges(scene) if diffraction and k and scene.n_triangles else None
+            )
         lit_faces = None
         if self.wedges is not None and self.wedges.count:
             lit_faces = np.zeros(max(int(self.wedges.face_facet.max()) + 1, 1), bool)
@@ -118,10 +165,15 @@ class Tracer:
                 np.repeat(np.arange(len(self.wedges.facet_start) - 1), np.diff(self.wedges.facet_start))
             ] = True
             lit_faces = lit_faces[self.wedges.face_facet] & (self.wedges.face_facet >= 0)
-        if self.reflectors.n and k:
-            self.shot: Shot = shoot(
-                self.caster, self.reflectors, tx, k, int(n_rays), hit_faces=lit_faces, hit_orders=k
+        if plan is not None:
+            self.shot = Shot(
+                plan.n_rays, float(np.sqrt(4 * np.pi / plan.n_rays)), plan.sequences, [], 0, [], []
             )
+        elif self.reflectors.n and k:
+            with STAGES("shooting"):
+                self.shot: Shot = shoot(
+                    self.caster, self.reflectors, tx, k, int(n_rays), hit_faces=lit_faces, hit_orders=k
+                )
         else:
             empty = [np.zeros((0, j), np.int64) for j in range(1, k + 1)]
             self.shot = Shot(
@@ -147,10 +199,58 @@ class Tracer:
                 tx,
                 k,
                 self.shot.sequences,
-                self._lit_pairs(),
+                self._lit_pairs() if plan is None else np.zeros((0, 3), np.int64),
                 cone_step,
             )
         self._cell_cache: dict = {}
+        if plan is not None:
+            for j in range(1, k + 1):
+                self._cell_cache[(j, plan.lattice)] = plan.cells[j]
+            if self.diffraction is not None and plan.diffraction is not None:
+                self.diffraction.candidates = plan.diffraction
+                self.diffraction._cells[plan.lattice] = plan.diffraction_cells
+
+    def plan(self, rx_positions: np.ndarray) -> TracerPlan:
+        """The candidates of every stage for receivers like ``rx_positions`` (n, 3), to share.
+
+        A tracer built with ``plan=`` solves receivers inside the same lattice of cells
+        (the scene's extent and these receivers' box, at their heights) without shooting a
+        ray, and gives the same paths as this one. Data-set workers and Dask tasks get one.
+        """
+        rx = np.asarray(rx_positions, dtype=np.float64).reshape(-1, 3)
+        lattice = self._lattice(rx)
+        cells = [None] + [self._cells(k, lattice) for k in range(1, self.max_reflections + 1)]
+        d = self.diffraction
+        d_cells = None if d is None else d.cells(lattice)
+        return TracerPlan(
+            tx=self.tx.copy(),
+            max_reflections=self.max_reflections,
+            n_rays=self.n_rays,
+            cell_size=self.cell_size,
+            cone_step=self.cone_step,
+            min_gain_db=self.min_gain_db,
+            diffraction_on=self.wedges is not None,
+            lattice=lattice,
+            sequences=self.shot.sequences,
+            cells=cells,
+            diffraction=None if d is None else d.candidates,
+            diffraction_cells=d_cells,
+        )
+
+    @classmethod
+    def from_plan(cls, scene: Scene, plan: TracerPlan) -> Tracer:
+        """A tracer of ``scene`` that reuses ``plan`` (from :meth:`plan` on the same scene)."""
+        return cls(
+            scene,
+            plan.tx,
+            plan.max_reflections,
+            plan.n_rays,
+            plan.cell_size,
+            plan.diffraction_on,
+            plan.cone_step,
+            plan.min_gain_db,
+            plan=plan,
+        )
 
     @property
     def n_candidates(self) -> list[int]:
@@ -203,19 +303,30 @@ class Tracer:
             for k in range(1, self.max_reflections + 1):
                 seqs, imgs = self.shot.sequences[k], self._images[k]
                 for seq_p, rx_p in self._cells(k, lattice).pairs(rx, _PAIR_BATCH):
-                    batches += self.solver.solve(self.tx, seqs, imgs, seq_p, rx_p, rx)
+                    with STAGES("exact solve"):
+                        batches += self.solver.solve(self.tx, seqs, imgs, seq_p, rx_p, rx)
             if self.diffraction is not None:
                 for cand_p, rx_p in self.diffraction.cells(lattice).pairs(rx, _PAIR_BATCH):
-                    batches += self.diffraction.solve(cand_p, rx_p, rx)
-        return self._assemble(rx, batches)
+                    with STAGES("diffraction solve"):
+                        batches += self.diffraction.solve(cand_p, rx_p, rx)
+        with STAGES("exact solve"):
+            return self._assemble(rx, batches)
 
     # ------------------------------------------------------------------ receivers vs candidates
     def _lattice(self, rx: np.ndarray) -> CellLattice:
         """Cells over the scene and the receivers, so that every tile of one grid shares them."""
+        z = (float(rx[:, 2].min()), float(rx[:, 2].max()))
+        if self._plan is not None:
+            lat = self._plan.lattice
+            lo = np.asarray(lat.origin)
+            hi = lo + lat.size * np.asarray(lat.shape)
+            if lat.z_range != z or np.any(rx[:, :2].min(axis=0) < lo) or np.any(rx[:, :2].max(axis=0) >= hi):
+                raise MmwsimError("receivers outside the lattice of the tracer's plan")
+            return lat
         lo, hi = self.scene.extent
         lo = np.minimum(lo[:2], rx[:, :2].min(axis=0))
         hi = np.maximum(hi[:2], rx[:, :2].max(axis=0))
-        return CellLattice.covering(lo, hi, self.cell_size, (float(rx[:, 2].min()), float(rx[:, 2].max())))
+        return CellLattice.covering(lo, hi, self.cell_size, z)
 
     def _cells(self, k: int, lattice: CellLattice) -> CandidateCells:
         """Cells reachable by each candidate sequence of order ``k`` (cached per lattice)."""
@@ -235,7 +346,8 @@ class Tracer:
                     (2.0 * sp * legs.unfolded + 0.05).astype(np.float32),
                     np.full(len(legs.seq), 2.0 * sp, np.float32),
                 )
-            self._cell_cache[key] = mark_cells(leg_set, len(self.shot.sequences[k]), lattice)
+            with STAGES("candidate cells"):
+                self._cell_cache[key] = mark_cells(leg_set, len(self.shot.sequences[k]), lattice)
         return self._cell_cache[key]
 
     # ------------------------------------------------------------------ assembly

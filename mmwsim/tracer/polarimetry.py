@@ -74,6 +74,15 @@ class PathBatch:
     def __len__(self) -> int:
         return int(len(self.rx))
 
+    @staticmethod
+    def empty(k: int) -> PathBatch:
+        """No paths (of ``k`` interactions)."""
+        z = np.zeros(0)
+        return PathBatch(
+            np.zeros(0, np.int64), z, np.zeros((0, k, 3)), np.zeros((0, k), np.int64), np.zeros((0, k), np.int8),
+            np.zeros((0, 2, 2), np.complex128), np.zeros((0, 2)), np.zeros((0, 2)),
+        )  # fmt: skip
+
     def select(self, mask: np.ndarray) -> PathBatch:
         """The paths where ``mask`` (m,) is true."""
         return PathBatch(*(getattr(self, f)[mask] for f in PathBatch.__dataclass_fields__))
@@ -285,7 +294,6 @@ def path_fields_into(
     field = np.empty((3, 3), np.complex128)
     step = np.empty((3, 3), np.complex128)
     tmp = np.empty((3, 3), np.complex128)
-    m3 = np.empty((3, 3), np.complex128)
     r0 = np.empty((2, 2), np.complex128)
     rn = np.empty((2, 2), np.complex128)
     t = (float(tx[0]), float(tx[1]), float(tx[2]))
@@ -322,7 +330,7 @@ def path_fields_into(
                 diffraction_scalar(
                     k_in, k_out, row(w_edge, w), row(w_t0, w), row(w_n0, w), row(w_tn, w), row(w_nn, w),
                     s_in, s_out, wavelength, eps[o0], thick[o0], rough[o0], eps[on], thick[on], rough[on],
-                    m3, r0, rn, step,
+                    r0, rn, step,
                 )  # fmt: skip
                 spread = wavelength / (4.0 * np.pi * np.sqrt(s_in * s_out * (s_in + s_out)))
             else:

@@ -353,6 +353,8 @@ class Tracer:
     # ------------------------------------------------------------------ assembly
     def _assemble(self, rx: np.ndarray, batches: list[PathBatch]) -> Paths:
         kmax = self.max_reflections
+        if not batches:
+            batches = [PathBatch.empty(0)]
         n = sum(len(b) for b in batches)
         rx_index = np.concatenate([b.rx for b in batches]).astype(np.int64)
         length = np.concatenate([b.length for b in batches])

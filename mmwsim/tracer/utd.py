@@ -65,8 +65,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import njit
-from ._vec import cross, dot, row, scale, sub, unit
-from .fresnel import Surface, bounce_scalar, reflection_scalar
+from ._vec import cross, dot, norm, row, scale, sub, unit
+from .fresnel import Surface, reflection_scalar
 
 __all__ = [
     "ON_BOUNDARY",
@@ -273,31 +273,40 @@ def _edge_basis(e, k, incident):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _reflection_2x2(e, k_inc, k_ref, normal, eps, thick, rough, wavelength, m3, out):  # pragma: no cover
-    """``-B_ref^T M B_inc`` into ``out`` (2, 2): a face's specular reflection in edge-fixed bases."""
+def _reflection_2x2(
+    k_inc, k_ref, normal, b_inc, b_ref, eps, thick, rough, wavelength, out
+):  # pragma: no cover
+    """``-B_ref^T M B_inc`` into ``out`` (2, 2): a face's specular reflection in edge-fixed bases.
+
+    ``M = r_TE e_s e_s^T + r_TM e_p,ref e_p,inc^T`` is :func:`~mmwsim.tracer.fresnel.bounce_matrices`;
+    ``b_inc``, ``b_ref`` are the edge-fixed bases (pairs of 3-vectors) of the two directions.
+    """
     r_te, r_tm = reflection_scalar(eps, thick, rough, min(abs(dot(k_inc, normal)), 1.0), wavelength)
-    bounce_scalar(k_inc, k_ref, normal, r_te, r_tm, m3)
-    bi0, bi1 = _edge_basis(e, k_inc, True)
-    br0, br1 = _edge_basis(e, k_ref, False)
+    e_s = cross(k_inc, normal)
+    ns = norm(e_s)
+    if ns < 1e-9:
+        # Normal incidence: any s direction will do, both coefficients describe one field.
+        alt = (1.0, 0.0, 0.0) if abs(normal[0]) < 0.9 else (0.0, 1.0, 0.0)
+        e_s = cross(alt, normal)
+        ns = norm(e_s)
+    e_s = scale(e_s, 1.0 / ns)
+    e_pi = cross(k_inc, e_s)
+    e_po = cross(k_ref, e_s)
     for a in range(2):
-        ra = br0 if a == 0 else br1
+        ra = b_ref[a]
         for b in range(2):
-            cb = bi0 if b == 0 else bi1
-            acc = 0.0j
-            for i in range(3):
-                for j in range(3):
-                    acc += ra[i] * m3[i, j] * cb[j]
-            out[a, b] = -acc
+            cb = b_inc[b]
+            out[a, b] = -(r_te * dot(ra, e_s) * dot(e_s, cb) + r_tm * dot(ra, e_po) * dot(e_pi, cb))
 
 
 @njit(cache=True)
 def diffraction_scalar(
     k_in, k_out, e, t0, n0, tn, nn, s_in, s_out, wavelength,
-    eps0, thick0, rough0, epsn, thickn, roughn, m3, r0, rn, out,
+    eps0, thick0, rough0, epsn, thickn, roughn, r0, rn, out,
 ):  # pragma: no cover - compiled  # fmt: skip
     """:func:`diffraction_matrices` of one diffraction point into ``out`` (3, 3) complex.
 
-    ``m3`` (3, 3) complex and ``r0``, ``rn`` (2, 2) complex are work arrays.
+    ``r0``, ``rn`` (2, 2) complex are work arrays.
     """
     k = 2.0 * np.pi / wavelength
     e = unit(e)
@@ -312,17 +321,20 @@ def diffraction_scalar(
     d_inc = _c_plus(phi_out - phi_in, n, kl) + _c_minus(phi_out - phi_in, n, kl)
     c_0 = _c_minus(phi_out + phi_in, n, kl)  # 0-face reflection boundary phi = pi - phi'
     c_n = _c_plus(phi_out + phi_in, n, kl)  # n-face reflection boundary phi = (2n - 1) pi - phi'
+    b_in = _edge_basis(e, k_in, True)
+    b_out = _edge_basis(e, k_out, False)
+    mirror0 = sub(k_in, scale(n0, 2.0 * dot(k_in, n0)))
     _reflection_2x2(
-        e, k_in, sub(k_in, scale(n0, 2.0 * dot(k_in, n0))), n0, eps0, thick0, rough0, wavelength, m3, r0
+        k_in, mirror0, n0, b_in, _edge_basis(e, mirror0, False), eps0, thick0, rough0, wavelength, r0
     )
     virt = sub(k_out, scale(nn, 2.0 * dot(k_out, nn)))
-    _reflection_2x2(e, virt, k_out, nn, epsn, thickn, roughn, wavelength, m3, rn)
-    bi0, bi1 = _edge_basis(e, k_in, True)
-    bo0, bo1 = _edge_basis(e, k_out, False)
+    _reflection_2x2(virt, k_out, nn, _edge_basis(e, virt, True), b_out, epsn, thickn, roughn, wavelength, rn)
     for a in range(2):
         for b in range(2):
             diag = d_inc if a == b else 0.0j
             r0[a, b] = p * (diag + c_0 * r0[a, b] + c_n * rn[a, b])
+    bi0, bi1 = b_in
+    bo0, bo1 = b_out
     for i in range(3):
         for j in range(3):
             out[i, j] = -(
@@ -396,13 +408,12 @@ def diffraction_matrices(
 def _diffraction_into(
     k_in, k_out, edge, t0, n0, tn, nn, s_in, s_out, wavelength, eps0, th0, ro0, epsn, thn, ron, out
 ):  # pragma: no cover - compiled
-    m3 = np.empty((3, 3), np.complex128)
     r0 = np.empty((2, 2), np.complex128)
     rn = np.empty((2, 2), np.complex128)
     for i in range(len(k_in)):
         diffraction_scalar(
             row(k_in, i), row(k_out, i), row(edge, i), row(t0, i), row(n0, i), row(tn, i), row(nn, i),
-            s_in[i], s_out[i], wavelength, eps0[i], th0[i], ro0[i], epsn[i], thn[i], ron[i], m3, r0, rn, out[i],
+            s_in[i], s_out[i], wavelength, eps0[i], th0[i], ro0[i], epsn[i], thn[i], ron[i], r0, rn, out[i],
         )  # fmt: skip
 
 

@@ -84,7 +84,9 @@ def log_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
 
     One row per epoch on the ``epoch`` timeline (1-based) at ``training/<name>/loss/train``,
     ``training/<name>/loss/validation``, ``training/<name>/rmse_m/validation`` (metres) and
-    ``training/<name>/learning_rate``.
+    ``training/<name>/learning_rate``; and the same curves as static bar charts by epoch at
+    ``training/per_epoch/{loss,rmse_m,learning_rate}/<name>/...``, which the Training tab shows
+    whatever timeline is active.
 
     Parameters
     ----------
@@ -111,6 +113,26 @@ def log_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
         rec.log(Entity.training(name, "loss/validation"), rr.Scalars(history["val_loss"][e]))
         rec.log(Entity.training(name, "rmse_m/validation"), rr.Scalars(history["val_rmse"][e]))
         rec.log(Entity.training(name, "learning_rate"), rr.Scalars(history["lr"][e]))
+    if n:
+        epoch = np.arange(1, n + 1, dtype=np.float64)
+        # Train and validation side by side in each epoch's slot.
+        for key, entity, offset, colour in (
+            ("train_loss", Entity.training_bars("loss", name) + "/train", -0.2, (80, 160, 255)),
+            ("val_loss", Entity.training_bars("loss", name) + "/validation", 0.2, (255, 160, 60)),
+            ("val_rmse", Entity.training_bars("rmse_m", name) + "/validation", 0.0, (255, 160, 60)),
+            ("lr", Entity.training_bars("learning_rate", name), 0.0, (150, 210, 120)),
+        ):
+            wide = offset == 0.0
+            rec.log(
+                entity,
+                rr.BarChart(
+                    np.asarray(history[key], dtype=np.float64),
+                    abscissa=epoch + offset,
+                    widths=np.full(n, 0.8 if wide else 0.4),
+                    color=colour,
+                ),
+                static=True,
+            )
     return n
 
 

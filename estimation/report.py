@@ -223,7 +223,7 @@ def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
                     rr.LineStrips2D(
                         [arr[i]],
                         colors=[colours[src]],
-                        radii=0.35 if src == "true" else 0.25,
+                        radii=rr.Radius.ui_points(2.5 if src == "true" else 1.8),
                         labels=[f"{split} {i}: {label} {src}"],
                         show_labels=False,
                     ),
@@ -234,7 +234,11 @@ def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
                 for src, arr in sources.items():
                     rec.log(
                         Entity.trajectory(ident, src) + "/now",
-                        rr.Points2D([arr[i][min(t, len(arr[i]) - 1)]], colors=[colours[src]], radii=0.9),
+                        rr.Points2D(
+                            [arr[i][min(t, len(arr[i]) - 1)]],
+                            colors=[colours[src]],
+                            radii=rr.Radius.ui_points(5.0),
+                        ),
                     )
     log_legend(
         rec,

@@ -115,20 +115,19 @@ def log_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
         rec.log(Entity.training(name, "learning_rate"), rr.Scalars(history["lr"][e]))
     if n:
         epoch = np.arange(1, n + 1, dtype=np.float64)
-        # Train and validation side by side in each epoch's slot.
-        for key, entity, offset, colour in (
-            ("train_loss", Entity.training_bars("loss", name) + "/train", -0.2, (80, 160, 255)),
-            ("val_loss", Entity.training_bars("loss", name) + "/validation", 0.2, (255, 160, 60)),
-            ("val_rmse", Entity.training_bars("rmse_m", name) + "/validation", 0.0, (255, 160, 60)),
-            ("lr", Entity.training_bars("learning_rate", name), 0.0, (150, 210, 120)),
+        # A bar starts at its abscissa: train and validation side by side around each epoch.
+        for key, entity, start, width, colour in (
+            ("train_loss", Entity.training_bars("loss", name) + "/train", -0.4, 0.4, (80, 160, 255)),
+            ("val_loss", Entity.training_bars("loss", name) + "/validation", 0.0, 0.4, (255, 160, 60)),
+            ("val_rmse", Entity.training_bars("rmse_m", name) + "/validation", -0.4, 0.8, (255, 160, 60)),
+            ("lr", Entity.training_bars("learning_rate", name), -0.4, 0.8, (150, 210, 120)),
         ):
-            wide = offset == 0.0
             rec.log(
                 entity,
                 rr.BarChart(
                     np.asarray(history[key], dtype=np.float64),
-                    abscissa=epoch + offset,
-                    widths=np.full(n, 0.8 if wide else 0.4),
+                    abscissa=epoch + start,
+                    widths=np.full(n, width),
                     color=colour,
                 ),
                 static=True,

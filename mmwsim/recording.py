@@ -242,7 +242,7 @@ def blueprint(
                 ),
                 rrb.Spatial2DView(name="Best beam", origin=Entity.COVERAGE, contents=["$origin/best_beam"]),
                 _legend_view("coverage"),
-                column_shares=[3, 3, 1],
+                column_shares=[5, 5, 2],
                 name="Coverage",
             )
         )
@@ -410,6 +410,7 @@ LEGEND_WIDTH = 8.0
 """Width of a legend group (colour bars span it), in the legend view's units (one unit per row)."""
 _SWATCH = 1.5
 _PITCH = 1.6  # legend units per row: labels are drawn at a fixed pixel size and need the room
+_LABEL_LIFT = 0.35  # the viewer draws a point's label below it; lift it level with its swatch
 
 
 def colorize(
@@ -450,7 +451,11 @@ def _legend_group(rec: Recording, tab: str, group: str, title: str, rows: int) -
     rec.log(
         f"{base}/title",
         rr.Points2D(
-            [[LEGEND_WIDTH / 2, 0.0]], radii=0.01, colors=[LABEL_RGB], labels=[title], show_labels=True
+            [[LEGEND_WIDTH / 2, -_LABEL_LIFT]],
+            radii=0.01,
+            colors=[LABEL_RGB],
+            labels=[title],
+            show_labels=True,
         ),
         static=True,
     )
@@ -496,7 +501,7 @@ def log_legend(
     rec.log(
         f"{base}/labels",
         rr.Points2D(
-            np.column_stack([np.full(len(y), (_SWATCH + LEGEND_WIDTH) / 2 + 0.5), y]),
+            np.column_stack([np.full(len(y), (_SWATCH + LEGEND_WIDTH) / 2 + 0.5), y - _LABEL_LIFT]),
             radii=0.01,
             colors=[LABEL_RGB],
             labels=[label for label, _ in entries],
@@ -528,7 +533,7 @@ def log_colorbar(
     ramp = colorize(np.repeat(np.linspace(lo, hi, n)[None, :], 2, axis=0), cmap, lo, hi)
     rec.log(
         f"{base}/bar",
-        rr.Transform3D(translation=[0.0, 0.8 * _PITCH, 0.0], scale=[LEGEND_WIDTH / n, 0.25, 1.0]),
+        rr.Transform3D(translation=[0.0, 0.9 * _PITCH, 0.0], scale=[LEGEND_WIDTH / n, 0.2, 1.0]),
         rr.Image(ramp, magnification_filter="Linear"),
         static=True,
     )
@@ -537,7 +542,7 @@ def log_colorbar(
     rec.log(
         f"{base}/ticks",
         rr.Points2D(
-            np.array([[0.0, 1.0], [LEGEND_WIDTH / 2, 1.0], [LEGEND_WIDTH, 1.0]]) * [1.0, 1.7 * _PITCH],
+            np.array([[0.0, 1.0], [LEGEND_WIDTH / 2, 1.0], [LEGEND_WIDTH, 1.0]]) * [1.0, 1.5 * _PITCH],
             radii=0.01,
             colors=[LABEL_RGB],
             labels=list(ticks),

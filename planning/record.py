@@ -79,7 +79,9 @@ def log_plan(
         )
         rec.log(
             f"{Entity.PLANNER_CORRIDOR}/trajectories",
-            rr.LineStrips2D(list(space.corridor.trajectories), colors=[_CORRIDOR], radii=0.4),
+            rr.LineStrips2D(
+                list(space.corridor.trajectories), colors=[_CORRIDOR], radii=0.4, draw_order=10.0
+            ),
             static=True,
         )
     rec.log(
@@ -96,6 +98,7 @@ def log_plan(
                 radii=0.5,
                 labels=[f"optimum {optimum.length:.2f} m"],
                 show_labels=False,
+                draw_order=20.0,
             ),
             static=True,
         )
@@ -105,7 +108,9 @@ def log_plan(
         rec.set_time(Timeline.ITERATION, snap.iteration)
         rec.log(Entity.PLANNER_TREE, rr.LineStrips2D(snap.edges, colors=[_TREE], radii=0.15))
         if snap.path is not None:
-            rec.log(Entity.PLANNER_PATH, rr.LineStrips2D([snap.path], colors=[_PATH], radii=0.6))
+            rec.log(
+                Entity.PLANNER_PATH, rr.LineStrips2D([snap.path], colors=[_PATH], radii=0.6, draw_order=30.0)
+            )
         ell = informed_ellipse(result.start, result.goal, snap.cost) if informed else None
         if ell is not None:
             rec.log(Entity.PLANNER_ELLIPSE, rr.LineStrips2D([ell], colors=[_ELLIPSE], radii=0.3))
@@ -119,6 +124,7 @@ def log_plan(
                 radii=0.6,
                 labels=[f"{result.label} {result.length:.2f} m"],
                 show_labels=False,
+                draw_order=30.0,
             ),
         )
     for it, _, cost in result.cost_curve:
@@ -155,6 +161,7 @@ def _log_result(rec: Recording, result: PlanResult, optimum: ShortestPath | None
                 radii=0.45,
                 labels=[f"{result.label} {result.length:.2f} m"],
                 show_labels=False,
+                draw_order=30.0,
             ),
             static=True,
         )
@@ -172,6 +179,7 @@ def _log_result(rec: Recording, result: PlanResult, optimum: ShortestPath | None
         Entity.PLANNER_SUMMARY, rr.TextDocument("\n\n".join(lines), media_type="text/markdown"), static=True
     )
     curve = np.asarray(result.cost_curve, dtype=np.float64).reshape(-1, 3)
+    curve = curve[np.isfinite(curve[:, 2])]  # no bar before the first solution
     if len(curve):
         # One bar per improvement, as wide as it lasted: a step plot of the best cost.
         it = curve[:, 0]
@@ -179,7 +187,9 @@ def _log_result(rec: Recording, result: PlanResult, optimum: ShortestPath | None
         base = optimum.length if optimum is not None else 0.0
         rec.log(
             f"{Entity.PLANNER_COST}/excess" if optimum is not None else f"{Entity.PLANNER_COST}/length",
-            rr.BarChart(curve[:, 2] - base, abscissa=it + widths / 2, widths=widths, color=_PATH),
+            rr.BarChart(
+                curve[:, 2] - base, abscissa=it, widths=widths, color=_PATH
+            ),  # bars start at abscissa
             static=True,
         )
 

@@ -166,6 +166,8 @@ def log_dataset(
     b0, b1 = (int(v) for v in ds.config["bins"])  # the fingerprint's delay-bin window
     pdps = np.stack([np.asarray(ds.pdp[int(r)], dtype=np.float32) for r in rx]) if len(rx) else None
     width = shown_bins(pdps[..., b0:b1]) if pdps is not None else 0
+    # Receivers in up to three columns, down then across, so the images keep a readable size.
+    per_column = int(np.ceil(len(rx) / (1 if len(rx) <= 3 else 2 if len(rx) <= 8 else 3))) if len(rx) else 1
     for row, r in enumerate(rx):
         name = f"rx_{int(r)}"
         bits = ds.fingerprints(np.array([r]), rng)[0]
@@ -173,7 +175,7 @@ def log_dataset(
         _log_bff_row(
             rec,
             name,
-            row,
+            (row // per_column, row % per_column),
             pdps[row, :, b0 : b0 + width],
             bits[:, :width],
             f"receiver {int(r)} at ({x:g}, {y:g}) m",
@@ -211,22 +213,21 @@ def shown_bins(pdp: np.ndarray) -> int:
     return int(min(pdp.shape[-1], max(16, last + 5)))
 
 
-def _bff_row_height(n_beams: int) -> float:
-    return float(n_beams + 2 * _GAP)
-
-
 def _log_bff_row(
     rec: Recording,
     name: str,
-    row: int,
+    slot: tuple[int, int],
     pdp: np.ndarray,
     bits: np.ndarray,
     label: str,
     static: bool,
 ) -> None:
-    """A receiver's PDP and fingerprint side by side in row ``row`` of the ``bff`` view, labelled."""
+    """A receiver's PDP and fingerprint side by side in slot (column, row) of the ``bff`` view,
+    labelled above."""
+    n_beams, n_bins = pdp.shape
     base = f"{Entity.BFF}/{name}"
-    rec.log(base, rr.Transform3D(translation=[0.0, row * _bff_row_height(pdp.shape[0]), 0.0]), static=True)
+    x, y = slot[0] * (2 * n_bins + 4 * _GAP), slot[1] * (n_beams + 2 * _GAP)
+    rec.log(base, rr.Transform3D(translation=[float(x), float(y), 0.0]), static=True)
     rec.log(Entity.bff(name, "pdp"), rr.Image(pdp_image(pdp)), static=static)
     rec.log(
         Entity.bff(name, "fingerprint"),
@@ -271,7 +272,7 @@ def log_fingerprint_steps(
         _log_bff_row(
             rec,
             name,
-            -1,
+            (0, -1),
             np.asarray(pdp[k, :, :width], dtype=np.float32),
             bits[k][:, :width],
             f"{what}, step {k}: {int(np.count_nonzero(bits[k]))} bits set",

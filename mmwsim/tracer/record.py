@@ -112,7 +112,7 @@ def log_candidates(rec: Recording, tracer: Tracer) -> int:
     if strips:
         rec.log(
             Entity.RAY_CANDIDATES,
-            rr.LineStrips3D(strips, colors=[(120, 160, 255, 90)], radii=0.05),
+            rr.LineStrips3D(strips, colors=[(120, 160, 255, 40)], radii=rr.Radius.ui_points(0.6)),
             static=True,
         )
         log_legend(rec, "scene", "candidates", "search", [("candidate rays (sample)", (120, 160, 255))])

@@ -70,19 +70,23 @@ def log_trajectories(
         label = [f"{kind} {int(trajectories.ids[i])}"] if labels else None
         rec.log(
             entity,
-            rr.LineStrips2D([pos], colors=[(*color, 110)], radii=0.25, labels=label, show_labels=False),
+            rr.LineStrips2D(
+                [pos], colors=[(*color, 110)], radii=rr.Radius.ui_points(1.2), labels=label, show_labels=False
+            ),
             static=True,
         )
         steps = np.arange(len(pos))
         # One columnar call per trajectory: row k holds the trail up to step k and the head.
         columns = [
             *rr.LineStrips2D.columns(
-                strips=[pos[: k + 1] for k in steps], colors=[color] * len(pos), radii=np.full(len(pos), 0.4)
+                strips=[pos[: k + 1] for k in steps],
+                colors=[color] * len(pos),
+                radii=rr.Radius.ui_points(np.full(len(pos), 2.0)),
             ),
             *rr.Points2D.columns(
                 positions=pos,
                 colors=[color] * len(pos),
-                radii=np.full(len(pos), 1.5),
+                radii=rr.Radius.ui_points(np.full(len(pos), 4.5)),
                 labels=(label * len(pos)) if label else None,
                 show_labels=np.zeros(len(pos), dtype=bool),
             ),

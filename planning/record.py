@@ -92,14 +92,7 @@ def log_plan(
     if optimum is not None:
         rec.log(
             Entity.PLANNER_OPTIMUM,
-            rr.LineStrips2D(
-                [optimum.path],
-                colors=[_OPTIMUM],
-                radii=0.5,
-                labels=[f"optimum {optimum.length:.2f} m"],
-                show_labels=False,
-                draw_order=20.0,
-            ),
+            _labelled_path(optimum.path, _OPTIMUM, 0.5, f"optimum {optimum.length:.2f} m", 20.0),
             static=True,
         )
     _log_result(rec, result, optimum)
@@ -118,14 +111,7 @@ def log_plan(
         rec.set_time(Timeline.ITERATION, result.iterations)
         rec.log(
             Entity.PLANNER_PATH,
-            rr.LineStrips2D(
-                [result.path],
-                colors=[_PATH],
-                radii=0.6,
-                labels=[f"{result.label} {result.length:.2f} m"],
-                show_labels=False,
-                draw_order=30.0,
-            ),
+            _labelled_path(result.path, _PATH, 0.6, f"{result.label} {result.length:.2f} m", 30.0),
         )
     for it, _, cost in result.cost_curve:
         rec.set_time(Timeline.ITERATION, int(it))
@@ -155,14 +141,7 @@ def _log_result(rec: Recording, result: PlanResult, optimum: ShortestPath | None
     if result.solved:
         rec.log(
             f"{Entity.PLANNER_RESULT}/path",
-            rr.LineStrips2D(
-                [result.path],
-                colors=[_PATH],
-                radii=0.45,
-                labels=[f"{result.label} {result.length:.2f} m"],
-                show_labels=False,
-                draw_order=30.0,
-            ),
+            _labelled_path(result.path, _PATH, 0.45, f"{result.label} {result.length:.2f} m", 30.0),
             static=True,
         )
     found = f"path of {result.length:.2f} m" if result.solved else "no path"
@@ -192,6 +171,13 @@ def _log_result(rec: Recording, result: PlanResult, optimum: ShortestPath | None
             ),  # bars start at abscissa
             static=True,
         )
+
+
+def _labelled_path(path, colour, radius: float, label: str, draw_order: float) -> rr.LineStrips2D:
+    """One path as a 2D strip, its label on hover, drawn above lines of lower ``draw_order``."""
+    return rr.LineStrips2D(
+        [path], colors=[colour], radii=radius, labels=[label], show_labels=False, draw_order=draw_order
+    )
 
 
 def _extent_points(space: FreeSpace, result: PlanResult, optimum: ShortestPath | None) -> np.ndarray:

@@ -185,47 +185,84 @@ def record_trajectories(ev: Evaluation, path: str | os.PathLike, footprints=None
 
 
 def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
-    """Log the entities of :func:`record_trajectories` into an open ``mmwsim.recording.Recording``."""
+    """Log the entities of :func:`record_trajectories` into an open ``mmwsim.recording.Recording``.
+
+    True tracks are near-white, each model has a colour of its own (the Trajectories legend says
+    which); labels show on hover, as there are many tracks.
+    """
     import rerun as rr
 
-    from mmwsim.recording import Entity, Timeline
+    from mmwsim.recording import Entity, Timeline, log_legend, log_map_context, north_up
 
+    north_up(rec, Entity.TRAJECTORIES)
     if footprints:
         strips = [np.asarray(p.exterior.coords) for p in footprints]
-        rec.log(Entity.FOOTPRINTS, rr.LineStrips2D(strips, colors=[(120, 120, 120)], radii=0.3), static=True)
+        north_up(rec, Entity.MAP)
+        rec.log(Entity.FOOTPRINTS, rr.LineStrips2D(strips, colors=[(110, 110, 118)], radii=0.3), static=True)
+        shown = [
+            np.asarray(v, dtype=np.float64).reshape(-1, 2)
+            for ex in ev.examples.values()
+            for k, v in ex.items()
+            if k != "kind"
+        ]
+        log_map_context(
+            rec, Entity.TRAJECTORIES, footprints, np.concatenate(shown) if shown else np.zeros((0, 2))
+        )
+    colours: dict[str, tuple[int, int, int]] = {}
     for split, ex in ev.examples.items():
         true = ex["true"]
         sources = {"true": true} | {k: v for k, v in ex.items() if k not in ("true", "kind")}
+        for j, src in enumerate(sources):
+            colours.setdefault(src, TRUE_RGB if src == "true" else _colour(j - 1))
         for i in range(len(true)):
             ident = f"{_slug(split)}-{i}"
             label = KINDS[int(ex["kind"][i])]
-            for j, (src, arr) in enumerate(sources.items()):
-                colour = (20, 20, 20) if src == "true" else _colour(j)
-                ent = Entity.trajectory(ident, src)
+            for src, arr in sources.items():
                 rec.log(
-                    ent,
-                    rr.LineStrips2D([arr[i]], colors=[colour], radii=0.25, labels=[f"{label} {src}"]),
+                    Entity.trajectory(ident, src),
+                    rr.LineStrips2D(
+                        [arr[i]],
+                        colors=[colours[src]],
+                        radii=rr.Radius.ui_points(2.5 if src == "true" else 1.8),
+                        labels=[f"{split} {i}: {label} {src}"],
+                        show_labels=False,
+                    ),
                     static=True,
                 )
             for t in range(true.shape[1]):
                 rec.set_time(Timeline.STEP, t)
-                for j, (src, arr) in enumerate(sources.items()):
-                    colour = (20, 20, 20) if src == "true" else _colour(j)
+                for src, arr in sources.items():
                     rec.log(
                         Entity.trajectory(ident, src) + "/now",
-                        rr.Points2D([arr[i][min(t, len(arr[i]) - 1)]], colors=[colour], radii=0.8),
+                        rr.Points2D(
+                            [arr[i][min(t, len(arr[i]) - 1)]],
+                            colors=[colours[src]],
+                            radii=rr.Radius.ui_points(5.0),
+                        ),
                     )
+    log_legend(
+        rec,
+        "trajectories",
+        "sources",
+        "tracks (step timeline: dots)",
+        [(src if src == "true" else f"{src} estimate", c) for src, c in colours.items()],
+    )
+
+
+TRUE_RGB = (235, 235, 235)
+"""True trajectories: near-white on the viewer's dark background."""
 
 
 def _colour(j: int) -> tuple[int, int, int]:
+    """Colour of the j-th model: bright enough for the dark theme, apart from white (true)."""
     palette = [
-        (31, 119, 180),
-        (255, 127, 14),
-        (44, 160, 44),
-        (214, 39, 40),
-        (148, 103, 189),
-        (140, 86, 75),
-        (227, 119, 194),
-        (127, 127, 127),
+        (80, 160, 255),
+        (255, 150, 50),
+        (90, 210, 110),
+        (240, 80, 90),
+        (190, 130, 255),
+        (240, 200, 60),
+        (80, 210, 210),
+        (255, 120, 200),
     ]
     return palette[j % len(palette)]

@@ -84,7 +84,9 @@ def log_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
 
     One row per epoch on the ``epoch`` timeline (1-based) at ``training/<name>/loss/train``,
     ``training/<name>/loss/validation``, ``training/<name>/rmse_m/validation`` (metres) and
-    ``training/<name>/learning_rate``.
+    ``training/<name>/learning_rate``; and the same curves as static bar charts by epoch at
+    ``training/per_epoch/{loss,rmse_m,learning_rate}/<name>/...``, which the Training tab shows
+    whatever timeline is active.
 
     Parameters
     ----------
@@ -111,6 +113,25 @@ def log_training(rec: Any, name: str, history: dict[str, list[float]]) -> int:
         rec.log(Entity.training(name, "loss/validation"), rr.Scalars(history["val_loss"][e]))
         rec.log(Entity.training(name, "rmse_m/validation"), rr.Scalars(history["val_rmse"][e]))
         rec.log(Entity.training(name, "learning_rate"), rr.Scalars(history["lr"][e]))
+    if n:
+        epoch = np.arange(1, n + 1, dtype=np.float64)
+        # A bar starts at its abscissa: train and validation side by side around each epoch.
+        for key, entity, start, width, colour in (
+            ("train_loss", Entity.training_bars("loss", name) + "/train", -0.4, 0.4, (80, 160, 255)),
+            ("val_loss", Entity.training_bars("loss", name) + "/validation", 0.0, 0.4, (255, 160, 60)),
+            ("val_rmse", Entity.training_bars("rmse_m", name) + "/validation", -0.4, 0.8, (255, 160, 60)),
+            ("lr", Entity.training_bars("learning_rate", name), -0.4, 0.8, (150, 210, 120)),
+        ):
+            rec.log(
+                entity,
+                rr.BarChart(
+                    np.asarray(history[key], dtype=np.float64),
+                    abscissa=epoch + start,
+                    widths=np.full(n, width),
+                    color=colour,
+                ),
+                static=True,
+            )
     return n
 
 

@@ -538,34 +538,33 @@ def nearest_free_point(space, point) -> np.ndarray | None:
 
 # ---------------------------------------------------------------------- recording
 def _record(cfg: DemoConfig, path: Path, ds, scene, data, est: dict, history, planned: dict) -> None:
-    import rerun as rr
-
     from estimation import Evaluation, log_training, log_trajectories
     from planning import log_plan
 
-    from .dataset.record import NO_SIGNAL_DBM, log_dataset
-    from .recording import FAMILIES, Entity, Recording, Timeline
+    from .dataset.record import log_dataset, log_fingerprint_steps
+    from .recording import FAMILIES, Recording
     from .tracer.record import log_paths
 
     chosen, split = planned["chosen"], est["split"]
     true = data.positions[chosen].astype(np.float64)
     grid_index = ds.nearest(true)
+    visited = grid_index[np.sort(np.unique(grid_index, return_index=True)[1])]  # in the order walked
     rest = [i for i in np.argsort(est["rmse"], kind="stable") if i != chosen][: cfg.shown - 1]
     shown = np.array([chosen, *rest], dtype=np.int64)
-    with Recording(path, "demo", families=FAMILIES, config=cfg.as_dict()) as rec:
-        # Scene, coverage per beam, and PDP / one fingerprint at the receivers along the trajectory.
-        log_dataset(rec, ds, receivers=np.unique(grid_index), scene=scene, seed=cfg.seed)
+    with Recording(path, "demo", families=FAMILIES, config=cfg.as_dict(), extent=scene.extent) as rec:
+        # Scene, beam patterns, coverage per beam, and PDP / one fingerprint at the receivers along
+        # the trajectory.
+        log_dataset(rec, ds, receivers=visited, scene=scene, seed=cfg.seed)
         log_paths(rec, ds.paths(grid_index))
         # The fingerprints the model saw, step by step.
-        name = f"trajectory_{int(est['ids'][chosen])}"
-        bits = est["bits"][chosen].numpy().astype(np.uint8)
-        pdp = data.grid_pdp[data.index[chosen]].float().numpy()
-        for k in range(len(true)):
-            rec.set_time(Timeline.STEP, k)
-            rec.log(Entity.bff(name, "fingerprint"), rr.Tensor(bits[k], dim_names=["beam", "bin"]))
-            shown_pdp = np.where(np.isfinite(pdp[k]), pdp[k], NO_SIGNAL_DBM)
-            rec.log(Entity.bff(name, "pdp"), rr.Tensor(shown_pdp, dim_names=["beam", "bin"]))
-            rec.log(Entity.bff(name, "detected_bits"), rr.Scalars(float(bits[k].sum())))
+        ident = int(est["ids"][chosen])
+        log_fingerprint_steps(
+            rec,
+            f"trajectory_{ident}",
+            data.grid_pdp[data.index[chosen]].float().numpy(),
+            est["bits"][chosen].numpy().astype(np.uint8),
+            f"trajectory {ident} (planned along)",
+        )
         # True against estimated trajectories.
         ev = Evaluation(
             examples={
@@ -576,7 +575,7 @@ def _record(cfg: DemoConfig, path: Path, ds, scene, data, est: dict, history, pl
                 }
             }
         )
-        log_trajectories(rec, ev)
+        log_trajectories(rec, ev, footprints=scene.footprints)
         log_training(rec, MODEL, history)
         log_plan(rec, planned["space"], planned["result"], planned["optimum"])
 

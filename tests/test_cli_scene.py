@@ -5,7 +5,7 @@ import sys
 
 import pytest
 import trimesh
-from rrd_helpers import blueprint_count, entity_rows
+from rrd_helpers import blueprint_count, check_blueprint, entity_rows
 
 from mmwsim.cli import main
 
@@ -39,6 +39,7 @@ def test_record(tmp_path):
     assert rows["/world/tx"] == 1 and rows["/world/rx_grid"] == 1
     assert rows["/map/footprints"] == 1 and rows["/meta/config"] == 1
     assert blueprint_count(rrd) == 1
+    check_blueprint(rrd, ["Scene", "Config"])
     assert not list(tmp_path.glob(".*partial"))
 
 

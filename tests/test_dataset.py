@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from rrd_helpers import entity_rows
+from rrd_helpers import check_blueprint, entity_rows
 
 import mmwsim
 from mmwsim.antennas import RotatingHorn
@@ -98,3 +98,4 @@ def test_recording(store, tmp_path):
         assert rows[f"/bff/rx_{i}/pdp"] == 1
         assert rows[f"/bff/rx_{i}/fingerprint"] == 1
         assert rows[f"/bff/rx_{i}/beam_power"] == 32
+    check_blueprint(rrd, ["Coverage", "Fingerprints", "Config"], "beam")

@@ -8,7 +8,7 @@ from collections import Counter
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
-from rrd_helpers import blueprint_count, entity_rows
+from rrd_helpers import blueprint_count, check_blueprint, entity_rows
 
 from mmwsim.cli import main
 from mmwsim.demo import MODEL
@@ -54,7 +54,7 @@ def test_recording_holds_every_stage(demo, capsys):
         "/planner/corridor",
     ):
         assert _rows_under(rows, family) > 0, family
-    ids = {path.split("/")[2] for path in rows if path.startswith("/trajectories/")}
+    ids = {path.split("/")[2] for path in rows if path.startswith("/trajectories/")} - {"map"}
     assert ids
     for ident in ids:
         assert rows[f"/trajectories/{ident}/true"] > 0 and rows[f"/trajectories/{ident}/{MODEL}"] > 0
@@ -67,6 +67,8 @@ def test_recording_holds_every_stage(demo, capsys):
         timelines.update(chunk.timeline_names)
     assert {"beam", "step", "epoch", "iteration"} <= timelines
     assert blueprint_count(rrd) == 1
+    tabs = ["Scene", "Coverage", "Fingerprints", "Trajectories", "Training", "Planner", "Config"]
+    check_blueprint(rrd, tabs, "beam")
 
 
 def test_summary_matches_the_recording_and_the_data(demo):

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from rrd_helpers import entity_rows
+from rrd_helpers import check_blueprint, entity_rows
 
 from estimation import EstimationError, load_splits
 from estimation.data import KINDS
@@ -87,6 +87,7 @@ def test_train_then_evaluate(tmp_path, capsys):
     assert rows["/trajectories/test_seen-0/true"] == 1
     assert rows["/trajectories/test_seen-0/gru"] == 1 and rows["/trajectories/test_seen-0/knn-kalman"] == 1
     assert rows["/trajectories/test_seen-0/gru/now"] == 5  # one point per step
+    check_blueprint(rrd, ["Trajectories"], "step")
 
 
 @pytest.mark.parametrize(

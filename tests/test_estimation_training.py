@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from rrd_helpers import entity_rows
+from rrd_helpers import check_blueprint, entity_rows
 
 from estimation import (
     CHECKPOINT_FORMAT,
@@ -87,6 +87,8 @@ def test_training_learns_and_records_curves(tmp_path):
     assert rows["/training/tcn/loss/train"] == 3
     assert rows["/training/tcn/loss/validation"] == 3
     assert rows["/training/tcn/rmse_m/validation"] == 3
+    assert rows["/training/per_epoch/loss/tcn/validation"] == 1  # bar charts: one static row
+    check_blueprint(tmp_path / "run" / "training.rrd", ["Training", "Config"], "epoch")
 
 
 def test_early_stopping(tmp_path):

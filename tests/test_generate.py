@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rrd_helpers import check_blueprint
 
 from mmwsim.cli import main
 from mmwsim.dataset import Dataset, generate
@@ -102,6 +103,7 @@ def test_cli_generates_and_resumes(tmp_path, capsys):
     argv = ["generate", "ground_only", "--out", str(out), "--max-reflections", "1", "--quiet"]
     assert main(argv + ["--spacing", "25", "--rrd", str(rrd)]) == 0
     assert "wrote" in capsys.readouterr().out and rrd.is_file()
+    check_blueprint(rrd, ["Scene", "Coverage", "Fingerprints", "Config"], "beam")
     ds = Dataset.open(out)
     assert ds.grid.shape == (5, 5)
     # open ground: every receiver sees the TX, except the one 8.5 m below it, whose paths

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 import shapely
-from rrd_helpers import entity_rows
+from rrd_helpers import check_blueprint, entity_rows
 
 import scenes
 from mmwsim.cli import EXIT_NO_SOLUTION, EXIT_USAGE, main
@@ -240,6 +240,7 @@ def test_cli_plan_json_and_recording(scene_folder, tmp_path, capsys):
     assert rows["/planner/path"] >= 2 and rows["/planner/ellipse"] >= 1
     assert rows["/planner/cost/best"] == len(doc["cost_curve"]) and rows["/planner/cost/optimum"] == 2
     assert rows["/planner/optimum"] == 1 and rows["/planner/endpoints"] == 1 and rows["/map/footprints"] == 1
+    check_blueprint(rrd, ["Planner", "Config"], "iteration")
     assert not list(tmp_path.glob(".*partial*"))
 
 

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from rrd_helpers import entity_rows
+from rrd_helpers import check_blueprint, entity_rows
 
 import scenes
 from mmwsim import Entity
@@ -40,6 +40,7 @@ def test_trace_cli_json_and_recording(tmp_path, capsys):
     assert rows[Entity.RAY_PATHS] == 1  # one batched call for all strips
     assert rows[Entity.RAY_CANDIDATES] == 1
     assert any(k.startswith(Entity.SCENE) for k in rows) and Entity.TX in rows
+    check_blueprint(rrd, ["Scene", "Config"])
 
 
 def test_trace_cli_many_receivers_summary(tmp_path, capsys):

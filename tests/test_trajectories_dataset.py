@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rrd_helpers import entity_rows
+from rrd_helpers import check_blueprint, entity_rows
 
 import mmwsim.tracer
 from mmwsim.cli import main
@@ -90,8 +90,11 @@ def test_trajectories_land_in_the_dataset(made):
         assert ds.valid[ds.nearest(t.positions)].all()
         assert scene.outdoors(pts).all()
     rows = entity_rows(rrd)
-    shown = [e for e in rows if e.startswith("/trajectories/")]
-    assert len(shown) == N and all(rows[e] == 7 for e in shown)
+    # per trajectory: the whole track (static) and its trail and head at each of the 7 steps
+    tracks = [e for e in rows if e.startswith("/trajectories/") and e.endswith("/true")]
+    assert len(tracks) == N and all(rows[e] == 1 and rows[f"{e}/now"] == 7 for e in tracks)
+    assert rows["/trajectories/map"] == 1
+    check_blueprint(rrd, ["Trajectories", "Config"], "step")
 
 
 def test_same_command_same_bytes_and_stray_partial_cleaned(made):

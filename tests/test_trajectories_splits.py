@@ -95,8 +95,8 @@ def test_cli_writes_splits_and_recording(tmp_path, capsys):
     assert not _touches(parts["train"].positions, REGION).any()
     rows = entity_rows(rrd)
     assert rows["/map/footprints"] == 1 and rows["/meta/config"] == 1
-    shown = [e for e in rows if e.startswith("/trajectories/")]
-    assert len(shown) == 75 and all(e.endswith("/true") and rows[e] == 6 for e in shown)
+    tracks = [e for e in rows if e.startswith("/trajectories/") and e.endswith("/true")]
+    assert len(tracks) == 75 and all(rows[e] == 1 and rows[f"{e}/now"] == 6 for e in tracks)
     # Same command, same arrays.
     first = read_trajectories(store, "train").positions
     assert main(argv) == 0

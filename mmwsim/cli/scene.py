@@ -65,7 +65,11 @@ def _record(args) -> int:
 
     scene = _load(args)
     with Recording(
-        args.rrd, "scene", families=("world",), config={"scene": scene.source or scene.name}
+        args.rrd,
+        "scene",
+        families=("world",),
+        config={"scene": scene.source or scene.name},
+        extent=scene.extent,
     ) as rec:
         log_scene(rec, scene)
     print(f"wrote {args.rrd}")

@@ -138,6 +138,7 @@ def _run(args) -> int:
             args.rrd,
             "trace",
             families=("world",),
+            extent=scene.extent,
             config={
                 "scene": scene.source or scene.name,
                 "tx": tx.tolist(),

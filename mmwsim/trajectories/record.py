@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import rerun as rr
 
-from ..recording import Entity, Recording, Timeline, log_footprints
+from ..recording import Entity, Recording, Timeline, log_footprints, log_legend, log_map_context, north_up
 from .motion import KINDS
 from .trajectories import Trajectories
 
@@ -17,10 +17,10 @@ if TYPE_CHECKING:
 __all__ = ["KIND_COLORS", "log_trajectories"]
 
 KIND_COLORS: dict[str, tuple[int, int, int]] = {
-    "static": (150, 150, 150),
-    "pedestrian": (40, 170, 80),
-    "hybrid": (230, 160, 20),
-    "vehicle": (40, 110, 230),
+    "static": (170, 170, 170),
+    "pedestrian": (70, 200, 100),
+    "hybrid": (240, 170, 40),
+    "vehicle": (80, 150, 255),
 }
 
 
@@ -32,11 +32,13 @@ def log_trajectories(
     source: str = "true",
     labels: bool = True,
 ) -> int:
-    """Log trajectories as growing trails with a head point, one entity per trajectory.
+    """Log trajectories: each whole track (static, faint), and a growing trail with a head point
+    on the ``step`` timeline; one entity per trajectory.
 
-    Entity ``trajectories/<id>/<source>`` gets, at every step ``k`` of the ``step`` timeline,
-    the trail ``positions[:k+1]`` and the current position. The building footprints go to
-    ``map/footprints`` (static) when a scene is given.
+    Entity ``trajectories/<id>/<source>`` holds the whole track, so a 2D view shows every
+    trajectory whatever timeline is active; ``trajectories/<id>/<source>/now`` gets, at every step
+    ``k``, the trail ``positions[:k+1]`` and the current position. Labels (kind and id) show on
+    hover. The building footprints go to ``map/footprints`` (static) when a scene is given.
 
     Parameters
     ----------
@@ -47,35 +49,57 @@ def log_trajectories(
         At most this many trajectories (the first ones) are logged.
     source : str
         Last entity-path part (``true`` for ground truth, a model name for estimates).
+    labels : bool
+        Attach hover labels.
 
     Returns
     -------
     int
         Number of trajectories logged.
     """
+    n = min(len(trajectories), max_shown)
+    north_up(rec, Entity.TRAJECTORIES)
     if scene is not None:
         log_footprints(rec, scene)
-    n = min(len(trajectories), max_shown)
+        log_map_context(rec, Entity.TRAJECTORIES, scene.footprints, trajectories.positions[:n].reshape(-1, 2))
     for i in range(n):
         pos = trajectories.positions[i].astype(np.float32)
         kind = KINDS[int(trajectories.kind[i])]
         color = KIND_COLORS[kind]
         entity = Entity.trajectory(int(trajectories.ids[i]), source)
         label = [f"{kind} {int(trajectories.ids[i])}"] if labels else None
+        rec.log(
+            entity,
+            rr.LineStrips2D(
+                [pos], colors=[(*color, 110)], radii=rr.Radius.ui_points(1.2), labels=label, show_labels=False
+            ),
+            static=True,
+        )
         steps = np.arange(len(pos))
         # One columnar call per trajectory: row k holds the trail up to step k and the head.
         columns = [
             *rr.LineStrips2D.columns(
-                strips=[pos[: k + 1] for k in steps], colors=[color] * len(pos), radii=np.full(len(pos), 0.4)
+                strips=[pos[: k + 1] for k in steps],
+                colors=[color] * len(pos),
+                radii=rr.Radius.ui_points(np.full(len(pos), 2.0)),
             ),
             *rr.Points2D.columns(
                 positions=pos,
                 colors=[color] * len(pos),
-                radii=np.full(len(pos), 1.5),
+                radii=rr.Radius.ui_points(np.full(len(pos), 4.5)),
                 labels=(label * len(pos)) if label else None,
+                show_labels=np.zeros(len(pos), dtype=bool),
             ),
         ]
         rec.stream.send_columns(
-            entity, indexes=[rr.TimeColumn(Timeline.STEP, sequence=steps)], columns=columns
+            f"{entity}/now", indexes=[rr.TimeColumn(Timeline.STEP, sequence=steps)], columns=columns
         )
+    shown = sorted({KINDS[int(k)] for k in trajectories.kind[:n]}, key=list(KIND_COLORS).index)
+    log_legend(
+        rec,
+        "trajectories",
+        "kinds",
+        "kinds (step timeline: trails)",
+        [(kind, KIND_COLORS[kind]) for kind in shown],
+    )
     return n

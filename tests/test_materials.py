@@ -2,6 +2,7 @@ import math
 import textwrap
 import warnings
 
+import numpy as np
 import pytest
 from scene_helpers import write_scene_folder
 
@@ -72,7 +73,16 @@ ROWS = [(name, i, row) for name, rows in TABLE3.items() for i, row in enumerate(
 
 def test_every_table3_material_present():
     assert set(TABLE3) <= set(ITU_MATERIALS)
-    assert set(ITU_MATERIALS) - set(TABLE3) == {"asphalt"}  # our measured road, under its own name
+    # our measured road, under its own name, and the ideal conductor of the closed forms
+    assert set(ITU_MATERIALS) - set(TABLE3) == {"asphalt", "perfect_conductor"}
+
+
+def test_perfect_conductor_reflects_minus_one_plus_one():
+    from mmwsim.tracer import Surface
+
+    s = Surface.of([get_material("pec")], 28e9)
+    r_te, r_tm = s.reflection(np.array([0.1]), 0.0107)
+    assert r_te[0] == -1 and r_tm[0] == 1
 
 
 @pytest.mark.parametrize("name", sorted(TABLE3))

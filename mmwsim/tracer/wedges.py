@@ -11,8 +11,9 @@ than :data:`MIN_ANGLE`, with the solid on the inside (a convex edge). Left out:
   buildings. Each face of the edge must have free space just in front of it near the
   edge, and so must the bisector of the exterior region.
 
-Collinear pieces of one edge between the same two planes are merged into one wedge,
-so a diffraction point on a joint between triangles is neither lost nor counted twice.
+Collinear pieces of one edge between the same two planes and materials are merged into
+one wedge (across objects: touching buildings form one edge), so a diffraction point on
+a joint between triangles is neither lost nor counted twice.
 
 Frame of each wedge (Kouyoumjian-Pathak): ``t0`` lies in the 0-face, perpendicular
 to the edge and pointing into the face; ``n0`` is that face's outward normal; the edge
@@ -208,9 +209,13 @@ def find_wedges(scene: Scene, min_angle: float = MIN_ANGLE) -> Wedges:
     fa, fb, na, nb, ang, p0, length, e, t0, tn = (
         x[keep] for x in (fa, fb, na, nb, ang, p0, length, e, t0, tn)
     )
+    # Pieces of one line between the same planes and materials merge, across objects too
+    # (touching buildings of one material form one straight edge).
+    kinds = [repr(o.material) for o in scene.objects]
+    material = np.unique(kinds, return_inverse=True)[1].ravel()[scene.face_object] if kinds else scene.face_object
     group = (
         np.unique(
-            np.column_stack([refl[fa], refl[fb], scene.face_object[fa], scene.face_object[fb]]),
+            np.column_stack([refl[fa], refl[fb], material[fa], material[fb]]),
             axis=0,
             return_inverse=True,
         )[1].ravel()

@@ -19,10 +19,10 @@ MODEL_FORMAT = "mmwsim-estimation-model/1"
 
 def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
     """Write ``state`` (which must hold a ``format`` key) to ``path`` via a temporary file and rename."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    from mmwsim.files import atomic_path
+
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
 
 
 def load_checkpoint(path: str | os.PathLike, fmt: str, required: tuple[str, ...] = ()) -> dict[str, Any]:

@@ -72,6 +72,9 @@ def _run(args) -> int:
         rx = read_receivers(args.rx_file)
     else:
         rx = np.array([parse_vector(r, 3, "--rx") for r in args.rx])
+    n_rays = DEFAULT_RAYS if args.rays is None else args.rays
+    if n_rays < 1:
+        raise MmwsimError(f"--rays must be positive, got {n_rays}")
     if not 0 <= args.max_reflections <= 6:
         raise MmwsimError(f"--max-reflections must be from 0 to 6, got {args.max_reflections}")
     for flag, target, suffix in (("--json", args.json, ".json"), ("--rrd", args.rrd, ".rrd")):
@@ -94,9 +97,6 @@ def _run(args) -> int:
             f"receiver {i + 1} at ({', '.join(f'{v:g}' for v in rx[i])}) is inside a building"
             + (f" ({int(outside.sum())} receivers are)" if outside.sum() > 1 else "")
         )
-    n_rays = args.rays or DEFAULT_RAYS
-    if n_rays < 1:
-        raise MmwsimError(f"--rays must be positive, got {n_rays}")
     tracer = Tracer(scene, tx, args.max_reflections, n_rays)
     paths = tracer.trace(rx)
     names = [o.name for o in scene.objects]

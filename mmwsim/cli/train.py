@@ -104,9 +104,12 @@ def _option(text: str) -> tuple[str, object]:
         raise MmwsimError(f"--option {text!r}: expected KEY=VALUE")
     for cast in (int, float):
         try:
-            return key, cast(value)
+            number = cast(value)
         except ValueError:
-            pass
+            continue
+        if number != number or number in (float("inf"), float("-inf")):
+            raise MmwsimError(f"--option {text!r}: {value!r} is not a finite number")
+        return key, number
     return key, value
 
 

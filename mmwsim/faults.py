@@ -7,7 +7,8 @@ process, default every time) it performs ``ACTION``:
 ``kill`` (default)
     ``SIGKILL`` to this process: nothing is cleaned up, as with ``kill -9``.
 ``hang``
-    Sleep until killed (lets a test observe locks and worker processes, then kill).
+    Say so on stderr (``mmwsim fault: POINT: hanging (pid N)``), then sleep until killed: lets
+    a test observe locks and worker processes, then kill.
 ``enospc``, ``edquot``, ``erofs``, ``eacces``, ``eio``
     Raise the :class:`OSError` that a full disk, an exhausted quota, a read-only file
     system, a refused permission or a failing device raises, naming the file being written.
@@ -46,6 +47,7 @@ from __future__ import annotations
 import errno
 import os
 import signal
+import sys
 import time
 from collections import Counter
 
@@ -87,6 +89,7 @@ def fault(point: str, path: str | os.PathLike | None = None) -> None:
         if action == "kill":
             os.kill(os.getpid(), signal.SIGKILL)
         elif action == "hang":
+            print(f"mmwsim fault: {point}: hanging (pid {os.getpid()})", file=sys.stderr, flush=True)
             while True:
                 time.sleep(60)
         elif action in _ERRNO:

@@ -206,7 +206,10 @@ def locked_output(
         raise
     try:
         if create:
-            made = made or make_dirs(output)
+            inner = make_dirs(output)
+            made = made or inner
+        for stray in output.glob(".*.partial*") if output.is_dir() else ():
+            remove_tree(stray)  # a temporary of mmwsim.files.atomic_path left by a killed writer
         yield output
     except BaseException as e:
         if made is not None and not (keep is not None and keep()):

@@ -78,16 +78,17 @@ def _evaluate(args) -> int:
 
     from ..files import check_output_folder
     from ..locks import locked_output
+    from . import check_threads
 
-    torch.set_num_threads(max(1, args.threads))
+    torch.set_num_threads(check_threads(args.threads))
     if not all(math.isfinite(n) and n >= 0 for n in args.noise):
         raise EstimationError(
             f"--noise {' '.join(map(str, args.noise))}: noise levels must be finite and >= 0 dB"
         )
     if args.lengths and min(args.lengths) < 1:
         raise EstimationError(f"--lengths {' '.join(map(str, args.lengths))}: sequence lengths must be >= 1")
-    if args.table_length < 1 or args.max_trajectories < 0:
-        raise EstimationError("--table-length must be >= 1 and --max-trajectories >= 0")
+    if args.table_length < 1 or args.max_trajectories < 0 or args.t_obs < 1 or args.horizon < 1:
+        raise EstimationError("--table-length, --t-obs and --horizon must be >= 1, --max-trajectories >= 0")
     if args.rrd and not args.rrd.endswith(".rrd"):
         raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
     if args.rrd and Path(args.rrd).parent != Path(args.out):  # the report folder is made later

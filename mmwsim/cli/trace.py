@@ -90,6 +90,14 @@ def _run(args) -> int:
             raise MmwsimError(f"scene {scene.name!r} has no transmitter; give --tx X,Y,Z")
         tx = scene.transmitter.array
     scene.check_transmitter(tx)
+    lo, hi = scene.extent
+    off = np.any(rx[:, :2] < lo[:2], axis=1) | np.any(rx[:, :2] > hi[:2], axis=1) | (rx[:, 2] <= lo[2])
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        raise MmwsimError(
+            f"receiver {i + 1} at ({', '.join(f'{v:g}' for v in rx[i])}) is outside the scene "
+            f"(x {lo[0]:g}..{hi[0]:g}, y {lo[1]:g}..{hi[1]:g}, above z {lo[2]:g})"
+        )
     outside = ~scene.outdoors(rx)
     if outside.any():
         i = int(np.flatnonzero(outside)[0])

@@ -114,12 +114,20 @@ def _option(text: str) -> tuple[str, object]:
 
 
 def _train(args) -> int:
+    import math
+
     import torch
+
+    from ..errors import MmwsimError
+    from . import check_threads
+
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
+        raise MmwsimError(f"--time-limit must be a positive number of minutes, got {args.time_limit}")
 
     from estimation import EstimationError, TrainConfig, build_network, train
     from estimation.adapter import load_sets
 
-    torch.set_num_threads(max(1, args.threads))
+    torch.set_num_threads(check_threads(args.threads))
     cfg = TrainConfig(
         model=args.model,
         task=args.task,
@@ -140,8 +148,8 @@ def _train(args) -> int:
     )
     try:  # reject a bad --option before reading the data
         build_network(cfg.model, 2, 2, cfg.task, cfg.horizon, cfg.dropout, **cfg.options)
-    except (TypeError, ValueError) as e:
-        raise EstimationError(f"--option: {e}") from None
+    except (TypeError, ValueError, RuntimeError) as e:  # torch refuses bad sizes with RuntimeError
+        raise EstimationError(f"--option: {' '.join(str(e).split())[:200]}") from None
     sets, info = load_sets(args.dataset, (args.train_split, args.val_split))
     info["train_split"], info["val_split"] = args.train_split, args.val_split
     summary = train(

@@ -139,4 +139,5 @@ _BYTES_PER_RECEIVER = 64
 
 def _check_size(shape) -> None:
     nx, ny = (float(n) for n in shape)
-    check_fits(nx * ny * _BYTES_PER_RECEIVER, f"a grid of {nx:.0f} x {ny:.0f} receivers")
+    size = " x ".join(f"{n:.0f}" if n < 1e12 else f"{n:.3g}" for n in (nx, ny))
+    check_fits(nx * ny * _BYTES_PER_RECEIVER, f"a grid of {size} receivers")

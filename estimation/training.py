@@ -213,8 +213,8 @@ def train(
         raise EstimationError(f"{run}: exists and is not a folder")
     if run.is_dir() and any(run.iterdir()) and not (run / RUN_FILE).exists():
         raise EstimationError(f"{run}: a folder that is not a training run; choose another --out")
-    if time_limit is not None and not (math.isfinite(time_limit) and time_limit > 0):
-        raise EstimationError(f"time limit must be a positive number of seconds, got {time_limit}")
+    if time_limit is not None and not (math.isfinite(time_limit) and time_limit >= 0):
+        raise EstimationError(f"time limit must be a finite number of seconds >= 0, got {time_limit}")
     if train_set.n == 0 or val_set.n == 0:
         raise EstimationError("training and validation sets must not be empty")
     if (train_set.n_beams, train_set.n_bins) != (val_set.n_beams, val_set.n_bins):

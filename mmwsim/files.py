@@ -71,10 +71,11 @@ def writing(path: str | os.PathLike, note: str = "") -> Iterator[None]:
 @contextmanager
 def reading(path: str | os.PathLike, what: str) -> Iterator[None]:
     """Turn the errors of reading a damaged store (bad JSON, wrong metadata, a missing array or
-    file) in the block into one :class:`MmwsimError` line naming ``path`` and ``what`` it should be."""
+    file, a chunk that does not decompress) in the block into one :class:`MmwsimError` line naming
+    ``path`` and ``what`` it should be."""
     try:
         yield
-    except (OSError, ValueError, TypeError, KeyError, IndexError) as e:
+    except (OSError, ValueError, TypeError, KeyError, IndexError, RuntimeError) as e:  # codecs: RuntimeError
         reason = " ".join(str(e).split())[:160] or type(e).__name__
         raise MmwsimError(f"{path}: not a readable {what} ({type(e).__name__}: {reason})") from None
 
@@ -131,7 +132,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         os.replace(tmp, path)
     except OSError as e:
         _unlink_quietly(tmp)
-        raise write_error(e, path) from None
+        raise write_error(OSError(e.errno, e.strerror), path) from None  # the target, not its temporary
     except BaseException:
         _unlink_quietly(tmp)
         raise

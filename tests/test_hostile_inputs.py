@@ -727,3 +727,35 @@ def test_outputs_in_a_missing_folder_are_refused_before_any_work(tmp_path, capsy
     monkeypatch.chdir(tmp_path)
     refused(capsys, argv, "nowhere")
     assert tree(tmp_path) == {}
+
+
+@pytest.mark.parametrize("folder", ["grid/valid", "grid/pdp", "trajectories/train/positions"])
+def test_corrupt_chunks_are_one_line(tmp_path, capsys, store, folder):
+    bad = tmp_path / "bad.zarr"
+    shutil.copytree(store, bad)
+    chunks = [
+        p for p in (bad / folder).rglob("*") if p.is_file() and "c" in p.relative_to(bad / folder).parts
+    ]
+    assert chunks
+    for p in chunks:
+        p.write_bytes(b"not zstd")
+    refused(capsys, ["train", bad, "--model", "lstm", "--out", tmp_path / "run", "--quiet"], "not a readable")
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, written",
+    [
+        (["scene", "export", "ground_only", "--out", "g.ply"], "g.ply"),
+        (["trace", "ground_only", "--rx", "10,10,1.5", "--rays", "1000", "--json", "p.json"], "p.json"),
+    ],
+)
+def test_full_disk_while_writing_a_file(tmp_path, capsys, monkeypatch, argv, written):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MMWSIM_FAULT", "file.write:enospc")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [err[-1]] and written in err[0] and "disk is full" in err[0] and not caught
+    assert tree(tmp_path) == {}

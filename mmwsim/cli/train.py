@@ -121,8 +121,8 @@ def _train(args) -> int:
     from ..errors import MmwsimError
     from . import check_threads
 
-    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
-        raise MmwsimError(f"--time-limit must be a positive number of minutes, got {args.time_limit}")
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit >= 0):
+        raise MmwsimError(f"--time-limit must be a finite number of minutes >= 0, got {args.time_limit}")
 
     from estimation import EstimationError, TrainConfig, build_network, train
     from estimation.adapter import load_sets

@@ -429,20 +429,24 @@ class Dataset:
     def positions(self) -> np.ndarray:
         """(n_rx, 3) float64 receiver positions, metres."""
         if self._positions is None:
-            self._positions = np.asarray(self.root["grid/positions"][:])
+            self._positions = self._read("grid/positions")
         return self._positions
 
     @property
     def valid(self) -> np.ndarray:
         """(n_rx,) bool: outdoors and detected (some noise-free PDP entry above the threshold)."""
         if self._valid is None:
-            self._valid = np.asarray(self.root["grid/valid"][:])
+            self._valid = self._read("grid/valid")
         return self._valid
 
     @property
     def outdoors(self) -> np.ndarray:
         """(n_rx,) bool."""
-        return np.asarray(self.root["grid/outdoors"][:])
+        return self._read("grid/outdoors")
+
+    def _read(self, name: str) -> np.ndarray:
+        with reading(self.path / name, "data set array"):
+            return np.asarray(self.root[name][:])
 
     @property
     def pdp(self) -> zarr.Array:

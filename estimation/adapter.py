@@ -93,12 +93,15 @@ class GridTable:
         self.extent = np.asarray(grid.bounds, dtype=np.float64)
         self.grid = grid
         n_bins = len(range(*bins.indices(pdp.shape[2])))
+        from mmwsim.files import reading
+
         out = torch.empty((len(self.flat_index), pdp.shape[1], n_bins), dtype=dtype)
-        for k in range(0, len(self.flat_index), _CHUNK):
-            rows = self.flat_index[k : k + _CHUNK]
-            lo, hi = int(rows[0]), int(rows[-1]) + 1
-            block = np.asarray(pdp[lo:hi])[rows - lo][:, :, bins]  # contiguous read, then pick valid rows
-            out[k : k + len(rows)] = torch.from_numpy(np.ascontiguousarray(block, dtype=np.float32))
+        with reading(getattr(dataset, "path", "data set"), "data set (its power-delay profiles)"):
+            for k in range(0, len(self.flat_index), _CHUNK):
+                rows = self.flat_index[k : k + _CHUNK]
+                lo, hi = int(rows[0]), int(rows[-1]) + 1
+                block = np.asarray(pdp[lo:hi])[rows - lo][:, :, bins]  # contiguous read, then pick valid rows
+                out[k : k + len(rows)] = torch.from_numpy(np.ascontiguousarray(block, dtype=np.float32))
         self.pdp = out
         self._row_of_flat = np.full(grid.size, -1, dtype=np.int64)
         self._row_of_flat[self.flat_index] = np.arange(len(self.flat_index))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -23,6 +24,21 @@ __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "LOSSES"]
 LOSSES = ("mse", "rmse")
 
 MODEL_FILE = "model.pt"
+
+
+_WHOLE = (
+    "epochs",
+    "batch_size",
+    "patience",
+    "lr_patience",
+    "min_length",
+    "max_length",
+    "t_obs",
+    "horizon",
+    "seed",
+    "epoch_size",
+)
+_REAL = ("sigma", "lr", "dropout", "min_delta", "lr_factor")
 
 
 @dataclass(frozen=True)
@@ -69,15 +85,26 @@ class TrainConfig:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for name in _WHOLE:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise EstimationError(f"{name} must be a whole number (got {v!r})")
+        for name in _REAL:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise EstimationError(f"{name} must be a finite number (got {v!r})")
+        for name in ("lr_patience", "max_length", "seed", "epoch_size"):
+            if getattr(self, name) < 0:
+                raise EstimationError(f"{name} must not be negative (got {getattr(self, name)})")
+        if not 0 < self.lr_factor < 1:
+            raise EstimationError(f"lr_factor must be in (0, 1) (got {self.lr_factor})")
         if self.model not in MODELS:
             raise EstimationError(f"unknown model {self.model!r} (choose from {', '.join(MODELS)})")
         if self.task not in ("tracking", "forecasting"):
             raise EstimationError(f"unknown task {self.task!r} (tracking, forecasting)")
-        for name in ("epochs", "batch_size", "min_length", "t_obs", "horizon"):
-            if int(getattr(self, name)) < 1:
+        for name in ("epochs", "batch_size", "patience", "min_length", "t_obs", "horizon"):
+            if getattr(self, name) < 1:
                 raise EstimationError(f"{name} must be at least 1 (got {getattr(self, name)})")
-        if self.epoch_size < 0:
-            raise EstimationError(f"epoch_size must not be negative (got {self.epoch_size})")
         if self.model in CANDIDATE_MODELS and self.task != "tracking":
             raise EstimationError(f"{self.model} estimates tracks only (task tracking)")
         if not self.loss:

@@ -7,6 +7,7 @@ trajectories are drawn once from a seeded generator, and every method and sequen
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -225,6 +226,17 @@ def evaluate(
         Trajectories per kind kept for the recording.
     seed : int
     """
+    if not all(math.isfinite(float(n)) and n >= 0 for n in noises):
+        raise EstimationError(f"noise levels must be finite and >= 0 dB, got {list(noises)}")
+    if table_length < 1 or (max_trajectories is not None and max_trajectories < 0):
+        raise EstimationError(
+            f"table_length must be >= 1 and max_trajectories >= 0, got {table_length}, {max_trajectories}"
+        )
+    longest = max((d.length for d in sets.values() if d.n), default=None)
+    if lengths and longest is not None and not all(1 <= v <= longest for v in lengths):
+        raise EstimationError(
+            f"sequence lengths {list(lengths)} must be within 1..{longest} (the trajectories' length)"
+        )
     ev = Evaluation(table_length=table_length)
     names = [m.name for m in methods]
     if len(set(names)) != len(names):

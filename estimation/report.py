@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .data import KINDS
+from .errors import EstimationError
 from .evaluation import Evaluation
 
 __all__ = [
@@ -113,11 +114,13 @@ def plot_error_vs_length(ev: Evaluation, split: str, sigma: float, path: str | o
         ax.axis("off")
     axes[0].legend(fontsize=7, ncol=1)
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.partial.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    from mmwsim.files import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return True
 
 
@@ -126,16 +129,27 @@ def _slug(text: str) -> str:
 
 
 def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    from mmwsim.files import write_text_atomic
+
+    write_text_atomic(path, text)
 
 
 def write_report(ev: Evaluation, out: str | os.PathLike, noises: list[float]) -> list[Path]:
     """Write ``accuracy.md``, ``cost.md``, ``error_vs_length_<split>_<sigma>dB.png`` and
     ``results.json`` into folder ``out``; returns the written paths."""
+    from mmwsim.faults import fault
+    from mmwsim.locks import locked_output
+
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise EstimationError(f"{out}: exists and is not a folder (choose another --out)")
+    # One writer per report folder; a folder made here is removed again if writing fails.
+    with locked_output(out, "report folder", create=True):
+        fault("report.write", out)
+        return _write_report(ev, out, noises)
+
+
+def _write_report(ev: Evaluation, out: Path, noises: list[float]) -> list[Path]:
     splits = list(dict.fromkeys(r["split"] for r in ev.rows))
     written = []
     parts = []

@@ -130,6 +130,10 @@ def parse_toy_spec(spec: str) -> dict[str, int]:
             raise EstimationError(f"{spec!r}: toy option {key} must be an integer") from None
         if opts[key] < (0 if key == "seed" else 2):
             raise EstimationError(f"{spec!r}: toy option {key} is too small")
+    from mmwsim.limits import check_fits
+
+    # toy_splits draws 3 n walks of `length` steps (float64 x, y and their index) per split
+    check_fits(3 * opts["n"] * opts["length"] * 64, f"{spec!r}: the toy data set")
     return opts
 
 

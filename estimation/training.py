@@ -27,6 +27,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from mmwsim.faults import fault
+
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
 from .data import Batch, BatchSampler, SequenceSet
 from .errors import EstimationError
@@ -51,11 +53,14 @@ def read_run_info(run: str | os.PathLike) -> dict[str, Any]:
     """The ``run.json`` of a run folder."""
     path = Path(run) / RUN_FILE
     try:
-        return json.loads(path.read_text())
+        info = json.loads(path.read_text())
     except FileNotFoundError:
         raise EstimationError(f"{run}: not a training run (no {RUN_FILE})") from None
     except (OSError, ValueError) as e:
         raise EstimationError(f"{path}: unreadable run description ({e})") from None
+    if not isinstance(info, dict) or not all(isinstance(info.get(k, {}), dict) for k in ("data", "summary")):
+        raise EstimationError(f"{path}: not a run description (expected an object with data and summary)")
+    return info
 
 
 def _write_json(path: Path, obj: Any) -> None:
@@ -222,19 +227,40 @@ def train(
         Summary: ``epochs`` run, ``best_val_loss``, ``best_val_rmse`` (m), ``train_seconds``,
         ``parameters``, ``stopped_early``.
     """
+    from mmwsim.locks import locked_output
+
     run = Path(run)
     if run.exists() and not run.is_dir():
         raise EstimationError(f"{run}: exists and is not a folder")
-    run.mkdir(parents=True, exist_ok=True)
-    if not os.access(run, os.W_OK):
-        raise EstimationError(f"{run}: folder is not writable")
-    ckpt_path = run / CHECKPOINT_FILE
-    if ckpt_path.exists() and not resume:
-        raise EstimationError(f"{run}: already holds a checkpoint; pass --resume or choose another --out")
+    if run.is_dir() and any(run.iterdir()) and not (run / RUN_FILE).exists():
+        raise EstimationError(f"{run}: a folder that is not a training run; choose another --out")
+    if time_limit is not None and not (math.isfinite(time_limit) and time_limit >= 0):
+        raise EstimationError(f"time limit must be a finite number of seconds >= 0, got {time_limit}")
     if train_set.n == 0 or val_set.n == 0:
         raise EstimationError("training and validation sets must not be empty")
     if (train_set.n_beams, train_set.n_bins) != (val_set.n_beams, val_set.n_bins):
         raise EstimationError("training and validation fingerprints differ in shape")
+    # One trainer per run folder; a run that fails before its first checkpoint leaves nothing,
+    # a later one stays resumable.
+    with locked_output(run, "run folder", create=True, keep=(run / CHECKPOINT_FILE).exists):
+        if (run / CHECKPOINT_FILE).exists() and not resume:
+            raise EstimationError(f"{run}: already holds a checkpoint; pass --resume or choose another --out")
+        return _train(train_set, val_set, cfg, run, resume, data_info, progress, record, log, time_limit)
+
+
+def _train(
+    train_set: SequenceSet,
+    val_set: SequenceSet,
+    cfg: TrainConfig,
+    run: Path,
+    resume: bool,
+    data_info: dict[str, Any] | None,
+    progress: bool,
+    record: bool,
+    log,
+    time_limit: float | None,
+) -> dict[str, Any]:
+    ckpt_path = run / CHECKPOINT_FILE
 
     lengths = _lengths(cfg, train_set)
     sampler = BatchSampler(
@@ -348,6 +374,7 @@ def train(
         else:
             bad += 1
         done = bad >= cfg.patience
+        fault("train.epoch", ckpt_path)
         save_checkpoint(
             ckpt_path,
             {
@@ -364,6 +391,7 @@ def train(
                 "done": done,
             },
         )
+        fault("train.checkpointed", ckpt_path)
         log(
             f"{cfg.model} epoch {epoch}: train {total / count:.5f} val {val_loss:.5f} "
             f"rmse {val_rmse:.2f} m lr {lr:.1e} ({history['seconds'][-1]:.1f} s)"

@@ -22,6 +22,7 @@ from .dataset import Dataset, GenerateConfig
 from .dataset import generate as generate_dataset
 from .errors import MaterialRangeWarning, MmwsimError
 from .fingerprints import FingerprintSampler, fingerprints, power_delay_profile
+from .locks import LockHeld, OutputLock
 from .materials import ITU_MATERIALS, Material, get_material, material_names
 from .recording import Entity, Recording, Timeline
 from .scene import (
@@ -85,6 +86,8 @@ __all__ = [
     "SPEED_OF_LIGHT",
     "ITU_MATERIALS",
     "Entity",
+    "LockHeld",
+    "OutputLock",
     "MaterialRangeWarning",
     "Material",
     "MmwsimError",

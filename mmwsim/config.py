@@ -23,9 +23,9 @@ Int2 = Annotated[tuple[StrictInt, StrictInt], Strict(False)]
 
 
 class StrictModel(BaseModel):
-    """Base of every config model: unknown keys and mistyped values are errors."""
+    """Base of every config model: unknown keys, mistyped values, NaN and infinities are errors."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

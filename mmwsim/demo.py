@@ -221,9 +221,16 @@ def run_demo(
     -------
     DemoResult
     """
+    from .locks import OutputLock
+
     cfg = config or demo_config(tiny, seed)
     out, rrd_path = check_outputs(out, rrd)
     out.mkdir(parents=True, exist_ok=True)
+    with OutputLock(out, "demo folder"):  # one demo per folder: it replaces stale stages in it
+        return _stages(cfg, out, rrd_path, progress, log)
+
+
+def _stages(cfg: DemoConfig, out: Path, rrd_path: Path, progress: bool, log) -> DemoResult:
     seconds: dict[str, float] = {}
 
     t0 = time.perf_counter()

@@ -320,7 +320,9 @@ ITU_MATERIALS["asphalt"] = Material(
 # The ideal reference of the closed forms (Kouyoumjian-Pathak's wedge, image theory): reflection
 # coefficients -1 (TE) and +1 (TM) exactly at every angle and frequency.
 ITU_MATERIALS["perfect_conductor"] = Material(
-    "perfect_conductor", (Band(1.0, 0.0, math.inf, 0.0, 0.0, math.inf),), source="ideal (infinite conductivity)"
+    "perfect_conductor",
+    (Band(1.0, 0.0, math.inf, 0.0, 0.0, math.inf),),
+    source="ideal (infinite conductivity)",
 )
 
 _ALIASES = {"air": "vacuum", "ceilingboard": "ceiling_board", "pec": "perfect_conductor"}

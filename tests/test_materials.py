@@ -368,7 +368,7 @@ def test_mitsuba_scattering_properties(tmp_path):
     [
         ("1.2", "4", "scattering_coefficient must be in"),
         ("-0.5", "4", "scattering_coefficient must be in"),
-        ("nan", "4", "scattering_coefficient must be in"),
+        ("nan", "4", "scattering_coefficient=.nan. is not a finite number"),
         ("lots", "4", "scattering_coefficient='lots' is not a number"),
         ("0.3", "0", "alpha_r must be an integer >= 1"),
         ("0.3", "2.5", "alpha_r='2.5' is not an integer"),

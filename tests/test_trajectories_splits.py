@@ -112,7 +112,7 @@ def test_cli_writes_splits_and_recording(tmp_path, capsys):
         (["--pedestrian", "-2"], "must be an integer >= 0"),
         (["--holdout-region", "1,2,3"], "expected 4"),
         (["--holdout-region", "500,500,600,600"], "outside the area"),
-        (["--split", "0,0,0"], "positive sum"),
+        (["--split", "0,0,0"], "sum to 1"),
     ],
 )
 def test_cli_bad_parameters(tmp_path, capsys, extra, message):

@@ -17,10 +17,11 @@ import warnings
 
 from ..errors import MmwsimError
 
-__all__ = ["main", "build_parser", "EXIT_USAGE", "EXIT_NO_SOLUTION"]
+__all__ = ["main", "build_parser", "check_threads", "EXIT_USAGE", "EXIT_NO_SOLUTION"]
 
 EXIT_USAGE = 2
 EXIT_NO_SOLUTION = 3
+MAX_THREADS = 1024  # torch crashes (segfault) when asked for some 100000 threads
 
 # Subcommand modules, in help order; a module missing here is simply not offered.
 COMMANDS = (
@@ -82,3 +83,10 @@ def parse_vector(text: str, n: int, what: str) -> tuple[float, ...]:
     if len(values) != n or not all(v == v and abs(v) != float("inf") for v in values):
         raise MmwsimError(f"{what} {text!r}: expected {n} finite comma-separated numbers")
     return values
+
+
+def check_threads(n: int) -> int:
+    """``--threads N``: 1..1024, else a one-line error."""
+    if not 1 <= n <= MAX_THREADS:
+        raise MmwsimError(f"--threads must be from 1 to {MAX_THREADS}, got {n}")
+    return n

@@ -69,9 +69,39 @@ def register(sub) -> None:
 
 
 def _evaluate(args) -> int:
+    import math
     from pathlib import Path
 
     import torch
+
+    from estimation import EstimationError
+
+    from ..files import check_output_folder
+    from ..locks import locked_output
+    from . import check_threads
+
+    torch.set_num_threads(check_threads(args.threads))
+    if not all(math.isfinite(n) and n >= 0 for n in args.noise):
+        raise EstimationError(
+            f"--noise {' '.join(map(str, args.noise))}: noise levels must be finite and >= 0 dB"
+        )
+    if args.lengths and min(args.lengths) < 1:
+        raise EstimationError(f"--lengths {' '.join(map(str, args.lengths))}: sequence lengths must be >= 1")
+    if args.table_length < 1 or args.max_trajectories < 0 or args.t_obs < 1 or args.horizon < 1:
+        raise EstimationError("--table-length, --t-obs and --horizon must be >= 1, --max-trajectories >= 0")
+    if args.rrd and not args.rrd.endswith(".rrd"):
+        raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
+    if args.rrd and Path(args.rrd).parent != Path(args.out):  # the report folder is made later
+        check_output_folder(args.rrd, "--rrd")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise EstimationError(f"--out {out}: exists and is not a folder")
+    with locked_output(out, "report folder"):  # a second evaluation into it is refused now
+        return _run(args, out)
+
+
+def _run(args, out) -> int:
+    from pathlib import Path
 
     from estimation import (
         EstimationError,
@@ -86,11 +116,6 @@ def _evaluate(args) -> int:
     )
     from estimation.adapter import load_sets, scene_footprints
 
-    torch.set_num_threads(max(1, args.threads))
-    if any(n < 0 for n in args.noise):
-        raise EstimationError(f"--noise {args.noise}: noise levels must be >= 0 dB")
-    if args.rrd and not args.rrd.endswith(".rrd"):
-        raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
     methods, dataset = [], args.dataset
     for run in args.runs:
         if run == "knn-kalman":
@@ -106,11 +131,19 @@ def _evaluate(args) -> int:
         info = read_run_info(run)
         est = Estimator.load(run)
         summary = info.get("summary", {})
+        seconds, epochs = summary.get("train_seconds", float("nan")), summary.get("epochs", 0)
+        trained_on = info.get("data", {}).get("dataset")
+        if (
+            isinstance(seconds, bool)
+            or not isinstance(seconds, (int, float))
+            or isinstance(epochs, bool)
+            or not isinstance(epochs, int)
+            or not isinstance(trained_on, (str, type(None)))
+        ):
+            raise EstimationError(f"{run}: run.json has a malformed summary or data description")
         name = Path(run).resolve().name  # the folder name labels the run in tables and recordings
-        methods.append(
-            NetworkMethod(est, name, summary.get("train_seconds", float("nan")), summary.get("epochs", 0))
-        )
-        dataset = dataset or info.get("data", {}).get("dataset")
+        methods.append(NetworkMethod(est, name, float(seconds), epochs))
+        dataset = dataset or trained_on
     if not dataset:
         raise EstimationError("no data set: give --dataset (needed when only classical trackers are named)")
     names = tuple(dict.fromkeys([*args.split, args.val_split]))
@@ -133,11 +166,11 @@ def _evaluate(args) -> int:
         max_trajectories=args.max_trajectories or None,
         seed=args.seed,
     )
-    written = write_report(ev, args.out, list(args.noise))
+    written = write_report(ev, out, list(args.noise))
     if args.rrd:
         record_trajectories(ev, args.rrd, footprints=scene_footprints(dataset))
         written.append(Path(args.rrd))
-    print((Path(args.out) / "accuracy.md").read_text())
-    print((Path(args.out) / "cost.md").read_text())
+    print((out / "accuracy.md").read_text())
+    print((out / "cost.md").read_text())
     print("wrote " + ", ".join(str(p) for p in written))
     return 0

@@ -34,6 +34,9 @@ def register(sub) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", help="run tiles on this Dask scheduler")
     p.add_argument("--rrd", metavar="FILE", help="also write a Rerun recording (.rrd) of the data set")
     p.add_argument("--tile-size", type=int, default=4096, help="receivers per tile (default 4096)")
+    p.add_argument(
+        "--rays", type=int, metavar="N", help="rays shot for the candidate search (default 8000000)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_area_arguments(p)
     p.set_defaults(func=_generate)
@@ -67,6 +70,7 @@ def _generate(args) -> int:
         rrd=args.rrd,
         progress=not args.quiet,
         tile_size=args.tile_size,
+        n_rays=args.rays,
         transmitter=parse_vector(args.tx, 3, "--tx") if args.tx else None,
         diffraction=not args.no_diffraction,
         diffuse=args.diffuse,

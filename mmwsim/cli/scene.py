@@ -52,10 +52,11 @@ def _export(args) -> int:
         raise MmwsimError(f"{out}: unsupported export format {out.suffix!r} (use .ply .obj .glb .stl .off)")
     if not out.parent.is_dir() or not os.access(out.parent, os.W_OK):
         raise MmwsimError(f"{out}: folder {out.parent} does not exist or is not writable")
+    from ..files import atomic_path
+
     scene = _load(args)
-    tmp = out.with_name(f".{out.name}.partial{out.suffix}")
-    scene.merged_mesh().export(tmp)
-    os.replace(tmp, out)
+    with atomic_path(out) as tmp:
+        scene.merged_mesh().export(tmp)
     print(f"wrote {out} ({scene.n_triangles} triangles)")
     return 0
 

@@ -92,6 +92,9 @@ def _run(args) -> int:
         rx = read_receivers(args.rx_file)
     else:
         rx = np.array([parse_vector(r, 3, "--rx") for r in args.rx])
+    n_rays = DEFAULT_RAYS if args.rays is None else args.rays
+    if n_rays < 1:
+        raise MmwsimError(f"--rays must be positive, got {n_rays}")
     if not 0 <= args.max_reflections <= 6:
         raise MmwsimError(f"--max-reflections must be from 0 to 6, got {args.max_reflections}")
     for flag, target, suffix in (("--json", args.json, ".json"), ("--rrd", args.rrd, ".rrd")):
@@ -107,6 +110,14 @@ def _run(args) -> int:
             raise MmwsimError(f"scene {scene.name!r} has no transmitter; give --tx X,Y,Z")
         tx = scene.transmitter.array
     scene.check_transmitter(tx)
+    lo, hi = scene.extent
+    off = np.any(rx[:, :2] < lo[:2], axis=1) | np.any(rx[:, :2] > hi[:2], axis=1) | (rx[:, 2] <= lo[2])
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        raise MmwsimError(
+            f"receiver {i + 1} at ({', '.join(f'{v:g}' for v in rx[i])}) is outside the scene "
+            f"(x {lo[0]:g}..{hi[0]:g}, y {lo[1]:g}..{hi[1]:g}, above z {lo[2]:g})"
+        )
     outside = ~scene.outdoors(rx)
     if outside.any():
         i = int(np.flatnonzero(outside)[0])
@@ -114,9 +125,6 @@ def _run(args) -> int:
             f"receiver {i + 1} at ({', '.join(f'{v:g}' for v in rx[i])}) is inside a building"
             + (f" ({int(outside.sum())} receivers are)" if outside.sum() > 1 else "")
         )
-    n_rays = DEFAULT_RAYS if args.rays is None else args.rays
-    if n_rays < 1:
-        raise MmwsimError(f"--rays must be positive, got {n_rays}")
     if not math.isfinite(args.min_gain):
         raise MmwsimError(f"--min-gain must be a finite number of dB, got {args.min_gain}")
     tracer = Tracer(

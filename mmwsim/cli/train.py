@@ -104,19 +104,30 @@ def _option(text: str) -> tuple[str, object]:
         raise MmwsimError(f"--option {text!r}: expected KEY=VALUE")
     for cast in (int, float):
         try:
-            return key, cast(value)
+            number = cast(value)
         except ValueError:
-            pass
+            continue
+        if number != number or number in (float("inf"), float("-inf")):
+            raise MmwsimError(f"--option {text!r}: {value!r} is not a finite number")
+        return key, number
     return key, value
 
 
 def _train(args) -> int:
+    import math
+
     import torch
+
+    from ..errors import MmwsimError
+    from . import check_threads
+
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit >= 0):
+        raise MmwsimError(f"--time-limit must be a finite number of minutes >= 0, got {args.time_limit}")
 
     from estimation import EstimationError, TrainConfig, build_network, train
     from estimation.adapter import load_sets
 
-    torch.set_num_threads(max(1, args.threads))
+    torch.set_num_threads(check_threads(args.threads))
     cfg = TrainConfig(
         model=args.model,
         task=args.task,
@@ -137,8 +148,8 @@ def _train(args) -> int:
     )
     try:  # reject a bad --option before reading the data
         build_network(cfg.model, 2, 2, cfg.task, cfg.horizon, cfg.dropout, **cfg.options)
-    except (TypeError, ValueError) as e:
-        raise EstimationError(f"--option: {e}") from None
+    except (TypeError, ValueError, RuntimeError) as e:  # torch refuses bad sizes with RuntimeError
+        raise EstimationError(f"--option: {' '.join(str(e).split())[:200]}") from None
     sets, info = load_sets(args.dataset, (args.train_split, args.val_split))
     info["train_split"], info["val_split"] = args.train_split, args.val_split
     summary = train(

@@ -107,19 +107,29 @@ def _open(args):
 
 
 def _run(args) -> int:
+    from ..files import check_output_folder, writing
+    from ..locks import OutputLock
     from ..recording import Recording
     from ..trajectories import generate, generate_for_dataset, log_trajectories, split, write_trajectories
-    from ..trajectories.splits import check_region
+    from ..trajectories.splits import check_fractions, check_region
     from . import parse_vector
 
     fractions = parse_vector(args.split, 3, "--split")
+    try:
+        check_fractions(fractions)
+    except MmwsimError as e:
+        raise MmwsimError(f"--split {args.split}: {e}") from None
     region = (
         check_region(parse_vector(args.holdout_region, 4, "--holdout-region"))
         if args.holdout_region
         else None
     )
-    if args.rrd and not args.rrd.endswith(".rrd"):
-        raise MmwsimError(f"{args.rrd}: a recording must end in .rrd")
+    if args.rrd:
+        if not args.rrd.endswith(".rrd"):
+            raise MmwsimError(f"{args.rrd}: a recording must end in .rrd")
+        check_output_folder(args.rrd, "--rrd")
+    if args.show < 0:
+        raise MmwsimError(f"--show must be >= 0, got {args.show}")
     counts = {
         "pedestrian": args.pedestrian,
         "vehicle": args.vehicle,
@@ -135,11 +145,15 @@ def _run(args) -> int:
         )
     options = dict(rate_hz=args.rate, vehicles_on_streets=args.streets, models=models)
     if ds is None:
-        trajectories = generate(scene, counts, args.length, args.seed, **options)
-    else:
-        trajectories = generate_for_dataset(ds, counts, args.length, args.seed, scene=scene, **options)
-    parts = split(trajectories, fractions, seed=args.seed, holdout_region=region)
-    write_trajectories(path if ds is None else ds, parts)
+        with writing(path.parent):
+            path.parent.mkdir(parents=True, exist_ok=True)
+    with OutputLock(path, "store"):  # a second writer is refused now, not after the generation
+        if ds is None:
+            trajectories = generate(scene, counts, args.length, args.seed, **options)
+        else:
+            trajectories = generate_for_dataset(ds, counts, args.length, args.seed, scene=scene, **options)
+        parts = split(trajectories, fractions, seed=args.seed, holdout_region=region)
+        write_trajectories(path if ds is None else ds, parts)
     if args.rrd:
         with Recording(
             args.rrd, "trajectories", families=("trajectories",), config=trajectories.attrs

@@ -6,12 +6,14 @@ import hashlib
 from typing import Literal
 
 import numpy as np
+from pydantic import Field, model_validator
 
-from ..config import Int2, StrictModel, Vec2, Vec3, content_hash
+from ..config import Int2, StrictModel, Vec2, Vec3, content_hash, validate
 from ..errors import MmwsimError
 from ..fingerprints import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
+from ..limits import check_fits
 
-__all__ = ["CodebookConfig", "GenerateConfig", "resolve_config", "scene_fingerprint"]
+__all__ = ["CodebookConfig", "GenerateConfig", "check_tile_memory", "resolve_config", "scene_fingerprint"]
 
 DEFAULT_TILE = 4096
 DEFAULT_PATH_CHUNK = 32768
@@ -22,12 +24,12 @@ class CodebookConfig(StrictModel):
     """Transmit codebook; angles in degrees."""
 
     kind: Literal["rotating_horn", "planar_array"] = "rotating_horn"
-    n_beams: int = 32
+    n_beams: int = Field(default=32, ge=1)
     gain_dbi: float = 24.5
-    elevation_deg: float = 0.0
+    elevation_deg: float = Field(default=0.0, ge=-90.0, le=90.0)
     azimuth0_deg: float = 0.0
-    n_horizontal: int = 8
-    n_vertical: int = 4
+    n_horizontal: int = Field(default=8, ge=1)
+    n_vertical: int = Field(default=4, ge=1)
 
 
 class GenerateConfig(StrictModel):
@@ -41,28 +43,42 @@ class GenerateConfig(StrictModel):
 
     scene: str
     scene_sha256: str
-    frequency: float
+    frequency: float = Field(gt=0)
     transmitter: Vec3
     tx_power_dbm: float = 30.0
     grid_origin: Vec2
-    grid_spacing: float
+    grid_spacing: float = Field(gt=0)
     grid_shape: Int2
     grid_height: float
-    max_reflections: int = 3
-    n_rays: int
+    max_reflections: int = Field(default=3, ge=0, le=6)
+    n_rays: int = Field(ge=1)
     diffraction: bool = True
-    diffuse: float | None = None
+    diffuse: float | None = Field(default=None, ge=0.0, le=1.0)
     min_path_gain_db: float | None = -180.0
     codebook: CodebookConfig = CodebookConfig()
     rx_gain_dbi: float = RX_GAIN_DBI
-    sample_rate: float = SAMPLE_RATE
-    n_bins: int = N_BINS
+    sample_rate: float = Field(default=SAMPLE_RATE, gt=0)
+    n_bins: int = Field(default=N_BINS, ge=1)
     band_limited: bool = False
-    sigma_db: float = SIGMA_DB
+    sigma_db: float = Field(default=SIGMA_DB, ge=0)
     threshold_dbm: float = THRESHOLD_DBM
     bins: Int2 = BINS
-    tile_size: int = DEFAULT_TILE
-    path_chunk: int = DEFAULT_PATH_CHUNK
+    tile_size: int = Field(default=DEFAULT_TILE, ge=1)
+    path_chunk: int = Field(default=DEFAULT_PATH_CHUNK, ge=1)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> GenerateConfig:
+        if min(self.grid_shape) < 1:
+            raise ValueError(f"grid_shape must be positive, got {list(self.grid_shape)}")
+        lo, hi = self.bins
+        if not 0 <= lo < hi <= self.n_bins:
+            raise ValueError(f"bins must satisfy 0 <= first < last <= n_bins ({self.n_bins}), got {[lo, hi]}")
+        return self
+
+    @property
+    def n_beams(self) -> int:
+        c = self.codebook
+        return c.n_beams if c.kind == "rotating_horn" else c.n_horizontal * c.n_vertical
 
     @property
     def n_rx(self) -> int:
@@ -109,6 +125,21 @@ class GenerateConfig(StrictModel):
         return scene
 
 
+# Peak bytes of a tile per (receiver, beam, bin): the complex taps as two float64 arrays, the power
+# in float64 and its dBm conversion (the paths of a tile are small beside them).
+_TILE_BYTES_PER_SAMPLE = 48
+# What a worker process holds besides its tile: interpreter, libraries, scene and ray tracer.
+_WORKER_BASE_BYTES = 256 << 20
+
+
+def check_tile_memory(cfg: GenerateConfig, workers: int = 1) -> None:
+    """Refuse a tile size (times the workers computing tiles at once) that cannot fit in memory."""
+    n = min(cfg.tile_size, cfg.n_rx)
+    per_worker = n * cfg.n_beams * cfg.n_bins * _TILE_BYTES_PER_SAMPLE + _WORKER_BASE_BYTES
+    what = f"a tile of {n} receivers" + (f" in each of {workers} workers" if workers > 1 else "")
+    check_fits(per_worker * workers, what)
+
+
 def scene_fingerprint(scene) -> str:
     """SHA-256 of a scene's triangles, objects and materials (detects an edited scene file)."""
     h = hashlib.sha256()
@@ -151,12 +182,14 @@ def resolve_config(
         raise MmwsimError(f"--diffuse must be a scattering coefficient from 0 to 1, got {diffuse!r}")
     if min_path_gain_db is not None and not np.isfinite(min_path_gain_db):
         raise MmwsimError(f"the path gain floor must be a finite number of dB, got {min_path_gain_db!r}")
+    if n_rays is not None and (int(n_rays) != n_rays or n_rays < 1):
+        raise MmwsimError(f"--rays must be a positive whole number, got {n_rays!r}")
     if tile_size < 1 or path_chunk < 1:
-        raise MmwsimError("tile size and path chunk must be positive")
+        raise MmwsimError(f"tile size and path chunk must be positive, got {tile_size} and {path_chunk}")
     tile_size = int(tile_size)
     if tile_size > PDP_CHUNK and tile_size % PDP_CHUNK:
         raise MmwsimError(f"tile size above {PDP_CHUNK} must be a multiple of {PDP_CHUNK}, got {tile_size}")
-    return GenerateConfig(
+    fields = dict(
         # a scene that knows its full spec (an OSM area with its CRS) is stored by it
         scene=str(getattr(scene, "spec", None) or scene_spec),
         scene_sha256=scene_fingerprint(scene),
@@ -177,3 +210,4 @@ def resolve_config(
         tile_size=tile_size,
         path_chunk=int(path_chunk),
     )
+    return validate(GenerateConfig, fields, f"scene {scene_spec!r}")

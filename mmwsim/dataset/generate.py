@@ -4,20 +4,24 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Iterator
+from contextlib import closing
 from pathlib import Path
 
 from ..errors import MmwsimError
+from ..files import check_output_folder
 from ..stages import STAGES
-from .config import DEFAULT_PATH_CHUNK, DEFAULT_TILE, CodebookConfig, GenerateConfig, resolve_config
+from .config import (
+    DEFAULT_PATH_CHUNK,
+    DEFAULT_TILE,
+    CodebookConfig,
+    GenerateConfig,
+    check_tile_memory,
+    resolve_config,
+)
 from .store import StoreWriter
 from .tiles import TileResult, build_plan, compute_tile, install_plan
 
 __all__ = ["generate", "run_tiles"]
-
-
-def _n_beams(cfg: GenerateConfig) -> int:
-    c = cfg.codebook
-    return c.n_beams if c.kind == "rotating_horn" else c.n_horizontal * c.n_vertical
 
 
 def generate(
@@ -82,8 +86,10 @@ def generate(
     if workers < 1:
         raise MmwsimError(f"--workers must be at least 1, got {workers}")
     out = Path(out)
-    if rrd is not None and Path(rrd).suffix != ".rrd":
-        raise MmwsimError(f"{rrd}: a recording must end in .rrd")
+    if rrd is not None:
+        if Path(rrd).suffix != ".rrd":
+            raise MmwsimError(f"{rrd}: a recording must end in .rrd")
+        check_output_folder(rrd, "--rrd")
     scene_obj = load_scene(scene, transmitter=transmitter)
     cfg = resolve_config(
         scene,
@@ -99,28 +105,31 @@ def generate(
         diffuse=diffuse,
         min_path_gain_db=min_path_gain_db,
     )
-    writer = StoreWriter(out, cfg, _n_beams(cfg), resume)
-    if writer.complete:
-        if progress:
-            print(f"{out} is already complete (content hash {cfg.hash()[:12]})")
-    else:
-        todo = range(writer.tiles_done, cfg.n_tiles)
-        bar = _bar(cfg, writer.tiles_done, progress)
-        try:
-            for result in run_tiles(cfg, todo, workers, scheduler):
-                STAGES.add(result.stages)
-                with STAGES("store"):
-                    writer.write(result)
-                bar.update(cfg.tile_range(result.tile)[1] - cfg.tile_range(result.tile)[0])
-        finally:
-            bar.close()
-        with STAGES("store"):
-            writer.finish()
-    if rrd is not None:
-        from .record import record_dataset
-        from .store import Dataset
+    check_tile_memory(cfg, workers if scheduler is None else 1)
+    with StoreWriter(out, cfg, cfg.n_beams, resume) as writer:  # holds the data set's lock
+        if writer.complete:
+            if progress:
+                print(f"{out} is already complete (content hash {cfg.hash()[:12]})")
+        else:
+            todo = range(writer.tiles_done, cfg.n_tiles)
+            bar = _bar(cfg, writer.tiles_done, progress)
+            # closing: a failed write stops the executor now (pending tiles cancelled)
+            with closing(run_tiles(cfg, todo, workers, scheduler)) as results:
+                try:
+                    for result in results:
+                        STAGES.add(result.stages)
+                        with STAGES("store"):
+                            writer.write(result)
+                        bar.update(cfg.tile_range(result.tile)[1] - cfg.tile_range(result.tile)[0])
+                finally:
+                    bar.close()
+            with STAGES("store"):
+                writer.finish()
+        if rrd is not None:
+            from .record import record_dataset
+            from .store import Dataset
 
-        record_dataset(Dataset.open(out), rrd, scene=scene_obj)
+            record_dataset(Dataset.open(out), rrd, scene=scene_obj)
     return out
 
 
@@ -157,33 +166,36 @@ def run_tiles(
         for t in tiles:
             yield compute_tile(text, t)
     else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
+        from ..workers import worker_pool
 
         plan = build_plan(cfg)
-        # spawn: Embree and BLAS thread pools do not survive fork reliably
-        with ProcessPoolExecutor(
-            workers,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=install_plan,
-            initargs=(cfg.hash(), plan),
-        ) as pool:
+        # processes that die with this one (also under kill -9), each given the tracer's plan
+        pool = worker_pool(workers, install_plan, (cfg.hash(), plan))
+        try:
             yield from _windowed(lambda t: pool.submit(compute_tile, text, t), tiles, 2 * workers)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _windowed(submit, tiles: list[int], depth: int) -> Iterator[TileResult]:
+    """Keep ``depth`` tiles submitted and yield their results in order; tiles still pending
+    when the consumer stops (an error, a closed generator) are cancelled."""
     pending = []
     it = iter(tiles)
-    for t in it:
-        pending.append(submit(t))
-        if len(pending) >= depth:
-            break
-    while pending:
-        result = pending.pop(0).result()
-        nxt = next(it, None)
-        if nxt is not None:
-            pending.append(submit(nxt))
-        yield result
+    try:
+        for t in it:
+            pending.append(submit(t))
+            if len(pending) >= depth:
+                break
+        while pending:
+            result = pending.pop(0).result()
+            nxt = next(it, None)
+            if nxt is not None:
+                pending.append(submit(nxt))
+            yield result
+    finally:
+        for f in pending:
+            f.cancel()
 
 
 def _dask(cfg: GenerateConfig, text: str, tiles: list[int], address: str) -> Iterator[TileResult]:

@@ -24,14 +24,16 @@ Layout (all arrays zstd-compressed)::
 Each tile's paths start on a chunk boundary of the path arrays (the slots after
 them up to the next boundary stay unused), so a tile's writes never touch another
 tile's chunks: a killed run resumes by redoing the uncommitted tile and ends with
-the same bytes. The run writes into ``<out>.partial`` and renames it when done.
+the same bytes. The run writes into ``<out>.partial`` and renames it when done, holding the
+lock ``.<out>.lock`` (:mod:`mmwsim.locks`) from start to finish, so a second writer is refused.
+A write that fails (disk full, read-only) keeps an unfinished run that has committed tiles
+(resumable) and removes one that has not.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +41,9 @@ import zarr
 from zarr.codecs import ZstdCodec
 
 from ..errors import MmwsimError
+from ..faults import fault
+from ..files import reading, remove_tree, write_error, writing
+from ..locks import OutputLock
 from ..scene import ReceiverGrid
 from ..tracer.paths import Paths
 from .config import GenerateConfig
@@ -75,6 +80,9 @@ def _path_specs(cfg: GenerateConfig) -> dict[str, tuple[tuple[int, ...], str, ob
 class StoreWriter:
     """Creates or reopens ``<out>.partial`` and appends tiles in order.
 
+    Holds the data set's lock (:class:`mmwsim.locks.OutputLock`) from construction until
+    :meth:`finish` or :meth:`close` (or the end of a ``with`` block).
+
     Parameters
     ----------
     out : path
@@ -84,17 +92,39 @@ class StoreWriter:
     resume : bool
         Continue a partial store of the same configuration; without it an existing
         store or partial store is an error.
+
+    Raises
+    ------
+    MmwsimError
+        If another process is writing the store (naming it), the output exists and is not a
+        data set of this configuration, or the folder cannot be written.
     """
 
     def __init__(self, out: Path, cfg: GenerateConfig, n_beams: int, resume: bool):
-        from .. import __version__
-
         self.out, self.cfg, self.n_beams = Path(out), cfg, int(n_beams)
         self.tmp = partial_path(self.out)
         self.hash = cfg.hash()
         self.complete = False
+        self.created = False
+        parent = self.out.parent
+        if not parent.is_dir():
+            raise MmwsimError(f"{self.out}: folder {parent} does not exist or is not writable")
+        self._lock: OutputLock | None = OutputLock(self.out, "data set").acquire()
+        try:
+            self._open(resume)
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, resume: bool) -> None:
+        from .. import __version__
+
         if self.out.exists():
             other = _stored_hash(self.out)
+            if other is None:
+                raise MmwsimError(
+                    f"{self.out}: exists and is not an mmwsim data set (remove it or choose another --out)"
+                )
             if not resume:
                 raise MmwsimError(f"{self.out} already exists (use --resume to check it, or remove it)")
             if other != self.hash:
@@ -103,15 +133,17 @@ class StoreWriter:
                     f"(content hash {str(other)[:12]}, this run {self.hash[:12]})"
                 )
             self.complete = True
-            (self.out / MARKER).unlink(missing_ok=True)  # a run killed between rename and cleanup
+            with writing(self.out):
+                (self.out / MARKER).unlink(missing_ok=True)  # a run killed between rename and cleanup
             return
-        parent = self.out.parent
-        if not parent.is_dir() or not os.access(parent, os.W_OK):
-            raise MmwsimError(f"{self.out}: folder {parent} does not exist or is not writable")
+        if not os.access(self.out.parent, os.W_OK):
+            raise MmwsimError(f"{self.out}: folder {self.out.parent} does not exist or is not writable")
         if self.tmp.exists():
             if not resume:
                 raise MmwsimError(f"{self.tmp} holds an unfinished run (use --resume, or remove it)")
             other = _stored_hash(self.tmp)
+            if other is None:
+                raise MmwsimError(f"{self.tmp}: not an unfinished mmwsim data set (remove it)")
             if other != self.hash:
                 raise MmwsimError(
                     f"{self.tmp} holds an unfinished run of another configuration "
@@ -119,10 +151,41 @@ class StoreWriter:
                 )
             marker = self._read_marker()
             self.tiles_done, self.slots = marker["tiles_done"], marker["slots"]
-            self.root = zarr.open_group(str(self.tmp), mode="r+", zarr_format=3)
+            with reading(self.tmp, "unfinished data set"):
+                self.root = zarr.open_group(str(self.tmp), mode="r+", zarr_format=3)
             return
         self.tiles_done, self.slots = 0, 0
-        self._create(__version__)
+        self.created = True
+        try:
+            fault("dataset.create", self.tmp)
+            self._create(__version__)
+        except OSError as e:
+            self.discard()
+            raise write_error(e, self.tmp, "nothing was kept") from None
+        except BaseException:
+            self.discard()
+            raise
+
+    def __enter__(self) -> StoreWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and self.created and self.tiles_done == 0 and not self.complete:
+            self.discard()  # failed before its first tile (executor unreachable, ...): nothing to resume
+        self.close()
+
+    def close(self) -> None:
+        """Release the data set's lock (the unfinished store, if any, stays resumable)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def _failed(self, e: OSError) -> MmwsimError:
+        """The one-line error of a failed write: keep a resumable run, drop one with nothing in it."""
+        if self.tiles_done == 0 and self.created:
+            self.discard()
+            return write_error(e, self.tmp, "nothing was kept")
+        return write_error(e, self.tmp, "the unfinished run is kept: run again with --resume")
 
     # ------------------------------------------------------------------ creation
     def _create(self, version: str) -> None:
@@ -180,8 +243,10 @@ class StoreWriter:
     def _read_marker(self) -> dict:
         try:
             m = json.loads(self._marker_path().read_text())
-            if m.get("content_hash") != self.hash:
-                raise ValueError("hash")
+            if not isinstance(m, dict) or m.get("content_hash") != self.hash:
+                raise ValueError("not this run's marker")
+            if not all(isinstance(m.get(k), int) and m[k] >= 0 for k in ("tiles_done", "slots")):
+                raise ValueError("no tile count")
             return m
         except (OSError, ValueError) as e:
             raise MmwsimError(f"{self.tmp}: unreadable progress marker ({e}); remove the folder") from None
@@ -196,9 +261,17 @@ class StoreWriter:
     # ------------------------------------------------------------------ tiles
     def write(self, result) -> None:
         """Write tile ``result`` (a :class:`~mmwsim.dataset.tiles.TileResult`), the next one in order."""
-        cfg = self.cfg
         if result.tile != self.tiles_done:
             raise RuntimeError(f"tile {result.tile} written out of order (expected {self.tiles_done})")
+        try:
+            fault("dataset.tile", self.tmp)
+            self._write(result)
+        except OSError as e:
+            raise self._failed(e) from None
+        fault("dataset.committed", self.tmp)
+
+    def _write(self, result) -> None:
+        cfg = self.cfg
         start, stop = cfg.tile_range(result.tile)
         g = self.root["grid"]
         m = int(result.count.sum())
@@ -225,6 +298,7 @@ class StoreWriter:
     def finish(self) -> None:
         """Record the summary, drop the marker and move the store into place."""
         if self.complete:
+            self.close()
             return
         info = dict(self.root.attrs["mmwsim"])
         valid = np.asarray(self.root["grid/valid"][:])
@@ -233,15 +307,23 @@ class StoreWriter:
             n_valid=int(valid.sum()),
             n_paths=int(np.asarray(self.root["grid/paths/count"][:]).sum()),
         )
-        self.root.attrs["mmwsim"] = info
-        # Rename first, then drop the marker: a kill in between leaves a complete store
-        # whose stray marker the next --resume removes.
-        os.replace(self.tmp, self.out)
-        (self.out / MARKER).unlink()
+        try:
+            self.root.attrs["mmwsim"] = info
+            # Rename first, then drop the marker: a kill in between leaves a complete store
+            # whose stray marker the next --resume removes.
+            fault("dataset.rename", self.out)
+            os.replace(self.tmp, self.out)
+        except OSError as e:
+            raise self._failed(e) from None
+        fault("dataset.renamed", self.out)
         self.complete = True
+        with writing(self.out, "the data set is complete"):
+            (self.out / MARKER).unlink()
+        self.close()
 
     def discard(self) -> None:
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        """Remove the unfinished store."""
+        remove_tree(self.tmp)
 
 
 def nearest_index(grid: ReceiverGrid, xy: np.ndarray) -> np.ndarray:
@@ -313,7 +395,32 @@ class Dataset:
         if not (p / "zarr.json").is_file():
             hint = " (an unfinished run is next to it: resume it)" if partial_path(p).exists() else ""
             raise MmwsimError(f"{p}: no data set there{hint}")
-        return cls(zarr.open_group(str(p), mode=mode, zarr_format=3), p)
+        with reading(p, "mmwsim data set"):
+            ds = cls(zarr.open_group(str(p), mode=mode, zarr_format=3), p)
+            ds._check_arrays()
+        return ds
+
+    def _check_arrays(self) -> None:
+        """Open every array of the layout (their metadata) and check it fits the grid, so that a
+        damaged store fails here, in one line, rather than halfway through a computation."""
+        n = self.grid.size
+        names = [
+            "grid/positions",
+            "grid/outdoors",
+            "grid/valid",
+            "grid/pdp",
+            "grid/paths/start",
+            "grid/paths/count",
+        ]
+        for name in names + [f"grid/paths/{f}" for f in PATH_FIELDS]:
+            a = self.root[name]
+            if not isinstance(a, zarr.Array):
+                raise ValueError(f"{name} is not an array")
+            if name.count("/") == 1 or name.endswith(("start", "count")):
+                if a.shape[0] != n:
+                    raise ValueError(f"{name} has {a.shape[0]} rows for a grid of {n} receivers")
+        if len(self.root["grid/pdp"].shape) != 3:
+            raise ValueError("grid/pdp is not (receivers, beams, bins)")
 
     # ------------------------------------------------------------------ arrays
     @property
@@ -324,20 +431,24 @@ class Dataset:
     def positions(self) -> np.ndarray:
         """(n_rx, 3) float64 receiver positions, metres."""
         if self._positions is None:
-            self._positions = np.asarray(self.root["grid/positions"][:])
+            self._positions = self._read("grid/positions")
         return self._positions
 
     @property
     def valid(self) -> np.ndarray:
         """(n_rx,) bool: outdoors and detected (some noise-free PDP entry above the threshold)."""
         if self._valid is None:
-            self._valid = np.asarray(self.root["grid/valid"][:])
+            self._valid = self._read("grid/valid")
         return self._valid
 
     @property
     def outdoors(self) -> np.ndarray:
         """(n_rx,) bool."""
-        return np.asarray(self.root["grid/outdoors"][:])
+        return self._read("grid/outdoors")
+
+    def _read(self, name: str) -> np.ndarray:
+        with reading(self.path / name, "data set array"):
+            return np.asarray(self.root[name][:])
 
     @property
     def pdp(self) -> zarr.Array:

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 import trimesh
 
+from ..errors import MmwsimError
+from ..limits import check_fits
 from ..materials import Material
 
 __all__ = ["ObjectKind", "SceneObject", "Transmitter", "ReceiverGrid"]
@@ -81,6 +84,19 @@ class ReceiverGrid:
     shape: tuple[int, int] = (401, 401)
     height: float = 1.5
 
+    def __post_init__(self) -> None:
+        numbers = (*self.origin, self.spacing, self.height)
+        if len(self.origin) != 2 or not all(math.isfinite(float(v)) for v in numbers):
+            raise MmwsimError(
+                f"receiver grid: origin, spacing and height must be finite numbers, got origin "
+                f"{tuple(self.origin)}, spacing {self.spacing}, height {self.height}"
+            )
+        if not self.spacing > 0:
+            raise MmwsimError(f"receiver grid: spacing must be positive, got {self.spacing}")
+        if len(self.shape) != 2 or not all(int(n) == n and n >= 1 for n in self.shape):
+            raise MmwsimError(f"receiver grid: shape must be two whole numbers >= 1, got {tuple(self.shape)}")
+        _check_size(self.shape)
+
     @property
     def size(self) -> int:
         """Number of receivers."""
@@ -108,6 +124,20 @@ class ReceiverGrid:
 
     def with_spacing(self, spacing: float) -> ReceiverGrid:
         """The same area covered at another spacing (the far edge kept where it falls on the grid)."""
-        span = (np.asarray(self.shape) - 1) * self.spacing
-        shape = tuple(int(s) for s in np.floor(span / spacing + 1e-9).astype(int) + 1)
-        return ReceiverGrid(self.origin, float(spacing), shape, self.height)
+        if not (math.isfinite(spacing) and spacing > 0):
+            raise MmwsimError(f"receiver spacing must be a positive number of metres, got {spacing!r}")
+        span = (np.asarray(self.shape, dtype=np.float64) - 1) * self.spacing
+        counts = np.floor(span / spacing + 1e-9) + 1
+        _check_size(counts)
+        return ReceiverGrid(self.origin, float(spacing), tuple(int(n) for n in counts), self.height)
+
+
+# Peak bytes per receiver of building the grid's positions: the (n, 3) float64 array and the
+# temporaries it is assembled from (the whole grid is held at once when a data set is written).
+_BYTES_PER_RECEIVER = 64
+
+
+def _check_size(shape) -> None:
+    nx, ny = (float(n) for n in shape)
+    size = " x ".join(f"{n:.0f}" if n < 1e12 else f"{n:.3g}" for n in (nx, ny))
+    check_fits(nx * ny * _BYTES_PER_RECEIVER, f"a grid of {size} receivers")

@@ -71,6 +71,8 @@ class Scene:
         self.source = source
         self.transmitter = transmitter
         self.receivers = receivers if receivers is not None else self._default_grid()
+        if receivers is not None:
+            self.check_receivers(receivers)
         if transmitter is not None:
             self.check_transmitter(transmitter.position)
 
@@ -260,6 +262,10 @@ class Scene:
             raise MmwsimError(
                 f"transmitter at {_fmt(p)} is outside the scene (x {lo[0]:g}..{hi[0]:g}, y {lo[1]:g}..{hi[1]:g})"
             )
+        if p[2] <= lo[2]:
+            raise MmwsimError(
+                f"transmitter at {_fmt(p)} is below the scene (its lowest point is z {lo[2]:g} m)"
+            )
         if not self.outdoors(p[None])[0]:
             raise MmwsimError(f"transmitter at {_fmt(p)} is inside a building")
         return p
@@ -278,6 +284,22 @@ class Scene:
             self.source,
             None if self._bounds is None else self._bounds.copy(),
         )
+
+    def check_receivers(self, grid: ReceiverGrid) -> ReceiverGrid:
+        """Validate a receiver grid against the scene: it must overlap the scene's extent and lie
+        above its lowest point (a grid under the ground has no valid receiver)."""
+        lo, hi = self.extent
+        (x0, y0), (x1, y1) = grid.bounds
+        if x1 < lo[0] or x0 > hi[0] or y1 < lo[1] or y0 > hi[1]:
+            raise MmwsimError(
+                f"receiver grid x {x0:g}..{x1:g}, y {y0:g}..{y1:g} lies outside the scene "
+                f"(x {lo[0]:g}..{hi[0]:g}, y {lo[1]:g}..{hi[1]:g})"
+            )
+        if grid.height <= lo[2]:
+            raise MmwsimError(
+                f"receiver height {grid.height:g} m is not above the scene (its lowest point is z {lo[2]:g} m)"
+            )
+        return grid
 
     # ------------------------------------------------------------------ export
     def merged_mesh(self) -> trimesh.Trimesh:

@@ -212,7 +212,9 @@ def find_wedges(scene: Scene, min_angle: float = MIN_ANGLE) -> Wedges:
     # Pieces of one line between the same planes and materials merge, across objects too
     # (touching buildings of one material form one straight edge).
     kinds = [repr(o.material) for o in scene.objects]
-    material = np.unique(kinds, return_inverse=True)[1].ravel()[scene.face_object] if kinds else scene.face_object
+    material = (
+        np.unique(kinds, return_inverse=True)[1].ravel()[scene.face_object] if kinds else scene.face_object
+    )
     group = (
         np.unique(
             np.column_stack([refl[fa], refl[fb], material[fa], material[fb]]),

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..limits import check_fits
 from .errors import TrajectoryError
 from .freespace import CoverageMask, FreeSpace
 from .motion import AVOID, KINDS, MODELS, NONE, ROAD, SPEED, STOP, TURN, MotionModel, motion_model
@@ -32,6 +33,9 @@ __all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_for_dataset", "gene
 MIN_LENGTH = 3
 MAX_LENGTH = 30
 _MAX_ROUNDS = 60
+# Peak bytes per trajectory sample while generating (positions, events, headings, draws and the
+# segment checks' temporaries; about 90 measured for pedestrians, with margin).
+_BYTES_PER_STEP = 256
 _MAX_AVOID = 12
 
 
@@ -269,6 +273,13 @@ def generate(
     unknown = set(counts) - set(KINDS)
     if unknown:
         raise TrajectoryError(f"unknown trajectory kind {sorted(unknown)[0]!r} (use {', '.join(KINDS)})")
+    total = 0
+    for kind in KINDS:
+        n = counts.get(kind, 0)
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise TrajectoryError(f"number of {kind} trajectories must be an integer >= 0, got {n!r}")
+        total += int(n)
+    check_fits(total * length * _BYTES_PER_STEP, f"generating {total} trajectories of {length} steps")
     models = {**MODELS, **(models or {})}
     bounds = (
         scene.receivers.bounds if free_space_bounds is None else np.asarray(free_space_bounds, dtype=float)
@@ -280,8 +291,6 @@ def generate(
     next_id = 0
     for code, kind in enumerate(KINDS):
         n = counts.get(kind, 0)
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-            raise TrajectoryError(f"number of {kind} trajectories must be an integer >= 0, got {n!r}")
         if n == 0:
             continue
         model = models[kind]

@@ -34,6 +34,22 @@ def check_region(region: Region) -> Region:
     return (x0, y0, x1, y1)
 
 
+def check_fractions(fractions) -> np.ndarray:
+    """Validate train / validation / test shares: three numbers >= 0 summing to 1 (within 1e-6).
+
+    Returns
+    -------
+    (3,) float64, scaled to sum exactly 1.
+    """
+    try:
+        f = np.asarray(fractions, dtype=np.float64)
+    except (TypeError, ValueError):
+        f = np.zeros(0)
+    if f.shape != (3,) or not np.all(np.isfinite(f)) or np.any(f < 0) or abs(f.sum() - 1) > 1e-6:
+        raise TrajectoryError(f"split fractions must be three numbers >= 0 that sum to 1, got {fractions!r}")
+    return f / f.sum()
+
+
 def touches_region(positions: np.ndarray, region: Region) -> np.ndarray:
     """Whether any sample or any segment of each trajectory meets the closed rectangle.
 
@@ -68,7 +84,7 @@ def split(
     trajectories : Trajectories
     fractions : (3,) float
         Shares of train, validation and test among the trajectories outside the hold-out
-        region; normalised to sum 1.
+        region; each in [0, 1], summing to 1 (within 1e-6).
     seed : int
         Seeds the shuffle (numpy Generator).
     holdout_region : (x0, y0, x1, y1), optional
@@ -80,12 +96,7 @@ def split(
         ``{"train": ..., "validation": ..., "test": ...}``; ``.holdout`` marks the trajectories
         that touch the region (all in the test split).
     """
-    f = np.asarray(fractions, dtype=np.float64)
-    if f.shape != (3,) or not np.all(np.isfinite(f)) or np.any(f < 0) or f.sum() <= 0:
-        raise TrajectoryError(
-            f"split fractions must be three numbers >= 0 with a positive sum, got {fractions!r}"
-        )
-    f = f / f.sum()
+    f = check_fractions(fractions)
     n = len(trajectories)
     held = np.zeros(n, dtype=bool)
     if holdout_region is not None:

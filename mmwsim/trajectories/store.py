@@ -9,15 +9,15 @@ trajectories leaves ``Dataset.open`` and ``mmwsim generate --resume`` as they we
 Each split group holds ``positions`` (n, L, 2) float64 metres, ``kind`` (n,) uint8 (index into
 ``attrs["kinds"]``), ``ids`` (n,) int64, ``events`` (n, L-1) int8 and ``holdout`` (n,) bool, and
 in its attributes the provenance (seed, rate, motion models, split parameters) with a content
-hash. All splits are written into a hidden sibling group and moved into place in one rename, so
-an interrupted run never leaves a half-written ``trajectories`` group.
+hash. All splits are written into a hidden sibling group, which then replaces the old group
+with :func:`mmwsim.files.replace_dir`: at every instant, a kill included, the store holds the
+old splits or the new ones. Writers hold the store's lock (:mod:`mmwsim.locks`).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,9 @@ from zarr.storage import LocalStore
 from ..config import content_hash
 from ..dataset import Dataset
 from ..dataset.store import FORMAT as DATASET_FORMAT
+from ..faults import fault
+from ..files import reading, recover_dir, remove_tree, replace_dir, resolve_dir, write_error
+from ..locks import OutputLock
 from .errors import TrajectoryError
 from .motion import EVENT_NAMES, KINDS
 from .trajectories import Trajectories
@@ -80,8 +83,11 @@ def _prepare(store: Store, splits: dict[str, Trajectories]) -> Path:
     missing) and return its folder."""
     root = store_root(store)
     if not root.exists():
-        root.parent.mkdir(parents=True, exist_ok=True)
-        zarr.open_group(root, mode="w", zarr_format=3).attrs["mmwsim"] = {"format": TRAJECTORY_FORMAT}
+        try:
+            zarr.open_group(root, mode="w", zarr_format=3).attrs["mmwsim"] = {"format": TRAJECTORY_FORMAT}
+        except OSError as e:
+            remove_tree(root)
+            raise write_error(e, root, "nothing was kept") from None
         return root
     if not (root / "zarr.json").is_file():
         raise TrajectoryError(f"{root}: not a zarr store (no zarr.json)")
@@ -131,57 +137,71 @@ def write_trajectories(store: Store, splits: dict[str, Trajectories]) -> Path:
         data set (its ``attrs["dataset"]`` content hash); an incomplete data set raises
         :class:`~mmwsim.errors.MmwsimError` from ``Dataset.open``.
     """
-    root = _prepare(store, splits)
-    final = root / GROUP
-    tmp = root / f".{GROUP}.partial"
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        group = zarr.open_group(tmp, mode="w", zarr_format=3)
-        for name, t in splits.items():
-            g = group.create_group(name)
-            data = {
-                "positions": t.positions,
-                "kind": t.kind,
-                "ids": t.ids,
-                "events": t.events,
-                "holdout": t.holdout.astype(np.bool_),
-            }
-            for key, arr in data.items():
-                chunks = (max(1, min(len(arr), 4096)),) + arr.shape[1:]
-                a = g.create_array(
-                    key, shape=arr.shape, dtype=arr.dtype, chunks=chunks, compressors=ZstdCodec(level=3)
-                )
-                if arr.size:
-                    a[...] = arr
-            attrs = _jsonable(
-                {
-                    **t.attrs,
-                    "kinds": list(KINDS),
-                    "events": list(EVENT_NAMES),
-                    "rate_hz": t.rate_hz,
-                    "n": len(t),
-                }
-            )
-            attrs["content_hash"] = content_hash(attrs)
-            g.attrs.update(attrs)
-        group.attrs.update({"splits": list(splits)})
-        old = root / f".{GROUP}.old"
-        shutil.rmtree(old, ignore_errors=True)
-        if final.exists():
-            os.replace(final, old)
-        os.replace(tmp, final)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    root = store_root(store)
+    if not root.parent.is_dir():
+        try:
+            root.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise write_error(e, root.parent) from None
+    with OutputLock(root, "store"):
+        root = _prepare(store, splits)
+        final = root / GROUP
+        tmp = root / f".{GROUP}.partial"
+        try:
+            recover_dir(final)  # a replacement killed halfway: finish it or roll it back
+            remove_tree(tmp)  # what a killed run was writing
+            _write_group(tmp, splits)
+            replace_dir(tmp, final)
+        except OSError as e:
+            raise write_error(e, final, "the stored trajectories are unchanged") from None
+        finally:
+            remove_tree(tmp)
     return final
+
+
+def _write_group(tmp: Path, splits: dict[str, Trajectories]) -> None:
+    fault("trajectories.write", tmp)
+    group = zarr.open_group(tmp, mode="w", zarr_format=3)
+    for name, t in splits.items():
+        g = group.create_group(name)
+        data = {
+            "positions": t.positions,
+            "kind": t.kind,
+            "ids": t.ids,
+            "events": t.events,
+            "holdout": t.holdout.astype(np.bool_),
+        }
+        for key, arr in data.items():
+            chunks = (max(1, min(len(arr), 4096)),) + arr.shape[1:]
+            a = g.create_array(
+                key, shape=arr.shape, dtype=arr.dtype, chunks=chunks, compressors=ZstdCodec(level=3)
+            )
+            if arr.size:
+                a[...] = arr
+        attrs = _jsonable(
+            {
+                **t.attrs,
+                "kinds": list(KINDS),
+                "events": list(EVENT_NAMES),
+                "rate_hz": t.rate_hz,
+                "n": len(t),
+            }
+        )
+        attrs["content_hash"] = content_hash(attrs)
+        g.attrs.update(attrs)
+    group.attrs.update({"splits": list(splits)})
 
 
 def list_splits(store: Store) -> list[str]:
     """Names of the stored splits (empty if the store holds no trajectories)."""
-    root = store_root(store)
-    if not (root / GROUP / "zarr.json").exists():
+    group = resolve_dir(store_root(store) / GROUP)
+    if not (group / "zarr.json").exists():
         return []
-    return list(zarr.open_group(root / GROUP, mode="r").attrs.get("splits", []))
+    with reading(group, "trajectory group"):
+        names = zarr.open_group(group, mode="r").attrs.get("splits", [])
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ValueError(f"splits attribute {names!r} is not a list of names")
+    return names
 
 
 def read_trajectories(store: Store, split: str) -> Trajectories:
@@ -196,9 +216,11 @@ def read_trajectories(store: Store, split: str) -> Trajectories:
     if split not in names:
         have = ", ".join(names) if names else "none"
         raise TrajectoryError(f"{root}: no trajectory split {split!r} (stored: {have})")
-    g = zarr.open_group(root / GROUP / split, mode="r")
-    arrays = {k: np.asarray(g[k][...]) for k in _ARRAYS}
-    attrs = dict(g.attrs)
+    where = resolve_dir(root / GROUP) / split
+    with reading(where, "trajectory split"):
+        g = zarr.open_group(where, mode="r")
+        arrays = {k: np.asarray(g[k][...]) for k in _ARRAYS}
+        attrs = dict(g.attrs)
     if list(attrs.get("kinds", KINDS)) != list(KINDS):
         raise TrajectoryError(
             f"{root}: trajectory kinds {attrs.get('kinds')} differ from this version's {KINDS}"

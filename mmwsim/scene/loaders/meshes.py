@@ -30,7 +30,17 @@ def _load(path: Path, force: str):
     if not path.is_file():
         raise MmwsimError(f"{path}: mesh file not found")
     try:
-        return trimesh.load(str(path), force=force, process=True)
+        loaded = trimesh.load(str(path), force=force, process=False)
+        # Check the coordinates as read: processing drops the faces of non-finite vertices silently.
+        parts = loaded.geometry.values() if isinstance(loaded, trimesh.Scene) else [loaded]
+        for part in parts:
+            if not np.all(np.isfinite(np.asarray(getattr(part, "vertices", np.zeros((0, 3)))))):
+                raise MmwsimError(f"{path}: mesh has non-finite vertex coordinates")
+            if isinstance(part, trimesh.Trimesh):
+                part.process()
+        return loaded
+    except MmwsimError:
+        raise
     except Exception as e:  # trimesh raises many types for unreadable files
         text = " ".join(str(e).split())[:200]
         raise MmwsimError(f"{path}: not a readable mesh ({type(e).__name__}: {text})") from None

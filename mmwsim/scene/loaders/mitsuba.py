@@ -41,9 +41,12 @@ def _float(props: dict[str, str], keys: tuple[str, ...], where: str) -> float | 
     for k in keys:
         if k in props:
             try:
-                return float(props[k])
+                value = float(props[k])
             except ValueError:
                 raise MmwsimError(f"{where}: {k}={props[k]!r} is not a number") from None
+            if not np.isfinite(value):
+                raise MmwsimError(f"{where}: {k}={props[k]!r} is not a finite number")
+            return value
     return None
 
 
@@ -96,6 +99,14 @@ def _radio_material(elem, where: str) -> Material:
     raise MmwsimError(f"{where}: unknown material {ident or kind!r} (bsdf type {kind!r})")
 
 
+def _number(text) -> float:
+    """A finite float from an attribute (ValueError otherwise, reported as a malformed transform)."""
+    value = float(text)
+    if not np.isfinite(value):
+        raise ValueError(f"{text!r} is not finite")
+    return value
+
+
 def _transform(elem, where: str) -> np.ndarray:
     t = elem.find("transform")
     m = np.eye(4)
@@ -104,23 +115,25 @@ def _transform(elem, where: str) -> np.ndarray:
     for op in t:
         try:
             if op.tag == "matrix":
-                vals = [float(v) for v in op.get("value", "").replace(",", " ").split()]
+                vals = [_number(v) for v in op.get("value", "").replace(",", " ").split()]
                 step = np.array(vals).reshape(4, 4)
             elif op.tag == "translate":
-                step = trimesh.transformations.translation_matrix([float(op.get(a, 0)) for a in "xyz"])
+                step = trimesh.transformations.translation_matrix([_number(op.get(a, 0)) for a in "xyz"])
             elif op.tag == "scale":
                 if op.get("value") is not None:
-                    s = [float(op.get("value"))] * 3
+                    s = [_number(op.get("value"))] * 3
                 else:
-                    s = [float(op.get(a, 1)) for a in "xyz"]
+                    s = [_number(op.get(a, 1)) for a in "xyz"]
                 step = np.diag(s + [1.0])
             elif op.tag == "rotate":
-                axis = [float(op.get(a, 0)) for a in "xyz"]
-                step = trimesh.transformations.rotation_matrix(np.radians(float(op.get("angle", 0))), axis)
+                axis = [_number(op.get(a, 0)) for a in "xyz"]
+                if not any(axis):
+                    raise ValueError("zero rotation axis")
+                step = trimesh.transformations.rotation_matrix(np.radians(_number(op.get("angle", 0))), axis)
             else:
                 raise MmwsimError(f"{where}: unsupported transform {op.tag!r}")
-        except ValueError:
-            raise MmwsimError(f"{where}: malformed {op.tag} transform") from None
+        except ValueError as e:
+            raise MmwsimError(f"{where}: malformed {op.tag} transform ({e})") from None
         m = step @ m
     return m
 

@@ -183,7 +183,10 @@ def load_toml(path: str | Path, transmitter: tuple[float, float, float] | None =
         r = spec.receivers
         if min(r.shape) < 1:
             raise MmwsimError(f"{path}: key 'receivers.shape' must be positive, got {list(r.shape)}")
-        grid = ReceiverGrid(r.origin, r.spacing, r.shape, r.height)
+        try:
+            grid = ReceiverGrid(r.origin, r.spacing, r.shape, r.height)
+        except MmwsimError as e:
+            raise MmwsimError(f"{path}: [receivers]: {e}") from None
     if spec.osm is not None:
         try:
             return scene_with_osm(

@@ -84,7 +84,7 @@ def _run(args) -> int:
     from ..recording import Recording, log_scene
     from ..scene import load_scene
     from ..tracer import DEFAULT_RAYS, Tracer
-    from ..tracer.record import log_candidates, log_paths
+    from ..tracer.record import log_candidates, log_paths, log_scene_wedges
     from . import parse_vector
 
     tx = np.array(parse_vector(args.tx, 3, "--tx")) if args.tx else None
@@ -158,6 +158,7 @@ def _run(args) -> int:
             log_scene(rec, scene)
             shown = np.arange(min(len(rx), _TABLE_LIMIT))
             log_paths(rec, paths, shown)
+            log_scene_wedges(rec, tracer, paths.select(np.isin(paths.rx_index, shown)))
             log_candidates(rec, tracer)
         print(f"wrote {args.rrd}")
     return 0

@@ -8,7 +8,7 @@ import rerun as rr
 
 from ..errors import MmwsimError
 from ..recording import Entity, Recording, colorize, log_colorbar, log_legend
-from .paths import PathKind, Paths
+from .paths import Interaction, PathKind, Paths
 from .tracer import Tracer
 
 __all__ = [
@@ -16,6 +16,7 @@ __all__ = [
     "log_paths",
     "log_candidates",
     "log_wedges",
+    "log_scene_wedges",
     "log_diffuse_tiles",
     "path_classes",
 ]
@@ -117,6 +118,17 @@ def log_candidates(rec: Recording, tracer: Tracer) -> int:
         )
         log_legend(rec, "scene", "candidates", "search", [("candidate rays (sample)", (120, 160, 255))])
     return len(strips)
+
+
+def log_scene_wedges(rec: Recording, tracer: Tracer, paths: Paths) -> int:
+    """The tracer's wedges (:func:`log_wedges`), highlighting those the diffracted ``paths`` use."""
+    if tracer.wedges is None or not tracer.wedges.count:
+        return 0
+    diff = paths.types == Interaction.DIFFRACTION
+    used = np.zeros(tracer.wedges.count, bool)
+    at = tracer.wedges.locate(paths.points[diff])
+    used[at[at >= 0]] = True
+    return log_wedges(rec, tracer.wedges.segments(), used)
 
 
 def log_wedges(rec: Recording, segments: np.ndarray, used: np.ndarray) -> int:

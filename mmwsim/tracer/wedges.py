@@ -107,6 +107,19 @@ class Wedges:
         """(m, 3) unit vectors into the middle of the exterior region of wedges ``wedge``."""
         return self.bisectors[wedge]
 
+    def locate(self, points: np.ndarray, tol: float = 1e-6) -> np.ndarray:
+        """(m,) index of the wedge each point (m, 3) lies on (within ``tol`` metres), -1 if none."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.full(len(p), -1, np.int64)
+        for a in range(0, len(p), 256):  # bounded (points x wedges) temporaries
+            q = p[a : a + 256, None, :] - self.origin[None]
+            x = np.clip(np.einsum("mwi,wi->mw", q, self.edge), 0.0, self.length[None])
+            d = np.linalg.norm(q - x[..., None] * self.edge[None], axis=2)
+            best = np.argmin(d, axis=1) if self.count else np.zeros(len(q), np.int64)
+            hit = d[np.arange(len(q)), best] <= tol if self.count else np.zeros(len(q), bool)
+            out[a : a + 256] = np.where(hit, best, -1)
+        return out
+
     def wedges_of_facets(self, facets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(index into ``facets``, wedge) pairs of the wedges bordering each facet (m,)."""
         facets = np.asarray(facets, np.int64)

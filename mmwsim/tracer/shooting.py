@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._jit import njit
 from ..geometry import RayCaster
 from .reflectors import Reflectors
 
@@ -22,6 +23,7 @@ __all__ = ["Shot", "Legs", "fibonacci_directions", "shoot"]
 # Offset of a bounced ray's origin off its plane, metres: Embree works in float32
 # (about 3e-5 m resolution at 400 m), so a smaller offset could re-hit the plane.
 _BOUNCE_OFFSET = 1e-3
+_DENSE_KEYS = 1 << 24  # sequence keys looked up in a dense table up to this many (128 MB)
 
 
 def fibonacci_directions(n: int) -> np.ndarray:
@@ -173,25 +175,11 @@ def shoot(
                 sample[int(ray_id[i])].append(origin[i] + tt * dirs[i])
             if k == max_reflections:
                 break
-            ref = np.where(face >= 0, reflectors.face_reflector[np.maximum(face, 0)], -1)
-            # A ray cannot physically meet the plane it just left; such hits are float32 noise.
-            keep = (ref >= 0) & (ref != last_ref)
-            t, ref, origin, dirs = t[keep], ref[keep], origin[keep], dirs[keep]
-            unfolded, seq_id, ray_id = unfolded[keep] + t, seq_id[keep], ray_id[keep]
-            n = reflectors.normal[ref]
-            point = origin + t[:, None] * dirs
-            dn = np.einsum("ij,ij->i", dirs, n)
-            dirs = dirs - 2.0 * dn[:, None] * n
-            origin = point - np.sign(dn)[:, None] * _BOUNCE_OFFSET * n
-            uniq, inv = np.unique(seq_id * n_ref + ref, return_inverse=True)
-            table = tables[k + 1]
-            ids = np.empty(len(uniq), dtype=np.int64)
-            for j, key in enumerate(uniq.tolist()):
-                if key not in table:
-                    table[key] = len(table)
-                    parents[k + 1].append(key)
-                ids[j] = table[key]
-            seq_id = ids[inv.ravel()]
+            keep, ref, origin, dirs, unfolded = _bounce(
+                origin, dirs, t, face, reflectors.face_reflector, reflectors.normal, last_ref, unfolded
+            )
+            seq_id, ray_id = seq_id[keep], ray_id[keep]
+            seq_id = _sequence_ids(tables[k + 1], parents[k + 1], seq_id * n_ref + ref)
             last_ref = ref
     sequences: list[np.ndarray] = [np.zeros((1, 0), dtype=np.int64)]
     for k in range(1, max_reflections + 1):
@@ -208,6 +196,77 @@ def shoot(
         hit_pairs.append(np.column_stack([keys // max(n_faces, 1), keys % max(n_faces, 1)]))
     spacing = float(np.sqrt(4.0 * np.pi / n_rays))
     return Shot(n_rays, spacing, sequences, all_legs, rays_cast, polylines, hit_pairs)
+
+
+@njit(cache=True)
+def _bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded):  # pragma: no cover
+    """Reflect the rays that hit a reflector specularly; returns (kept index, reflector, origin, dirs, unfolded).
+
+    A ray cannot physically meet the plane it just left: such hits are float32 noise and
+    end the ray, as do misses. New origins sit :data:`_BOUNCE_OFFSET` off the plane.
+    """
+    m = len(t)
+    keep = np.empty(m, np.int64)
+    n_keep = 0
+    for i in range(m):
+        f = face[i]
+        if f >= 0:
+            r = face_reflector[f]
+            if r >= 0 and r != last_ref[i]:
+                keep[n_keep] = i
+                n_keep += 1
+    keep = keep[:n_keep]
+    ref = np.empty(n_keep, np.int64)
+    o2 = np.empty((n_keep, 3))
+    d2 = np.empty((n_keep, 3))
+    u2 = np.empty(n_keep)
+    for j in range(n_keep):
+        i = keep[j]
+        r = face_reflector[face[i]]
+        ref[j] = r
+        nx, ny, nz = normal[r, 0], normal[r, 1], normal[r, 2]
+        dn = dirs[i, 0] * nx + dirs[i, 1] * ny + dirs[i, 2] * nz
+        side = _BOUNCE_OFFSET if dn > 0 else (-_BOUNCE_OFFSET if dn < 0 else 0.0)
+        for a, na in enumerate((nx, ny, nz)):
+            o2[j, a] = origin[i, a] + t[i] * dirs[i, a] - side * na
+            d2[j, a] = dirs[i, a] - 2.0 * dn * na
+        u2[j] = unfolded[i] + t[i]
+    return keep, ref, o2, d2, u2
+
+
+def _sequence_ids(table: dict, parents: list[int], keys: np.ndarray) -> np.ndarray:
+    """Ids of sequence keys (parent id * n_ref + reflector), new keys numbered in sorted order.
+
+    ``table`` maps keys to ids; while the key space is small it also holds a dense array
+    (``table["dense"]``) so that known keys are looked up without sorting.
+    """
+    top = int(keys.max()) + 1 if len(keys) else 0
+    dense = table.get("dense")
+    if top <= _DENSE_KEYS:
+        if dense is None or len(dense) < top:
+            grown = np.full(max(top, 1024), -1, np.int64)
+            if dense is not None:
+                grown[: len(dense)] = dense
+            table["dense"] = dense = grown
+        ids = dense[keys]
+        new = np.unique(keys[ids < 0])
+        if len(new):
+            dense[new] = len(parents) + np.arange(len(new))
+            parents.extend(new.tolist())
+            ids = dense[keys]
+        return ids
+    if dense is not None:  # the key space outgrew the dense table: move to the sorted path
+        for key in np.flatnonzero(dense >= 0).tolist():
+            table[key] = int(dense[key])
+        del table["dense"]
+    uniq, inv = np.unique(keys, return_inverse=True)
+    ids = np.empty(len(uniq), dtype=np.int64)
+    for j, key in enumerate(uniq.tolist()):
+        if key not in table:
+            table[key] = len(parents)
+            parents.append(key)
+        ids[j] = table[key]
+    return ids[inv.ravel()]
 
 
 def _fib_slice(n: int, start: int, count: int) -> np.ndarray:

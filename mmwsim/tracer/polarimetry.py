@@ -95,21 +95,42 @@ class FaceMaterials:
     Attributes
     ----------
     objects : Surface
-        One entry per scene object (its material at the carrier).
+        One entry per scene object (its material at the carrier; roughness = S).
     owner : (n_faces,) int
         Object of each triangle.
     wavelength : float
         Metres.
+    xpd : (n_objects,) float
+        Cross-polarised fraction Kx of each object's diffuse scattering.
+    pattern : (n_objects,) str
+        Its scattering pattern, ``"lambertian"`` or ``"directive"``.
+    alpha_r : (n_objects,) int
+        Its directive lobe exponent.
     """
 
     objects: Surface
     owner: np.ndarray
     wavelength: float
+    xpd: np.ndarray
+    pattern: np.ndarray
+    alpha_r: np.ndarray
 
     @classmethod
     def of(cls, scene) -> FaceMaterials:
-        surfaces = Surface.of([o.material for o in scene.objects], scene.frequency)
-        return cls(surfaces, np.asarray(scene.face_object, np.int64), SPEED_OF_LIGHT / scene.frequency)
+        mats = [o.material for o in scene.objects]
+        return cls(
+            Surface.of(mats, scene.frequency),
+            np.asarray(scene.face_object, np.int64),
+            SPEED_OF_LIGHT / scene.frequency,
+            np.array([m.xpd_coefficient for m in mats], np.float64),
+            np.array([m.scattering_pattern for m in mats], dtype=object),
+            np.array([m.alpha_r for m in mats], np.int64),
+        )
+
+    @property
+    def rough_faces(self) -> np.ndarray:
+        """(n_faces,) bool: triangles whose material scatters diffusely (S > 0)."""
+        return self.objects.roughness[self.owner] > 0 if len(self.owner) else np.zeros(0, bool)
 
     def surface(self, faces: np.ndarray) -> Surface:
         """The surfaces of triangles ``faces`` (m,), one entry each."""

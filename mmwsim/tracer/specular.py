@@ -151,12 +151,19 @@ class SpecularSolver:
         )
 
     def reach(
-        self, tx: np.ndarray, seqs: np.ndarray, images: np.ndarray, seq_p: np.ndarray, ends: np.ndarray
-    ) -> np.ndarray:
+        self,
+        tx: np.ndarray,
+        seqs: np.ndarray,
+        images: np.ndarray,
+        seq_p: np.ndarray,
+        ends: np.ndarray,
+        with_points: bool = False,
+    ):
         """Whether each point ``ends`` (m, 3) is reached from ``tx`` through sequence ``seqs[seq_p]``.
 
         The exact specular chain is unfolded and its legs checked, as for a receiver; ``seqs``
-        may have zero columns (line of sight).
+        may have zero columns (line of sight). With ``with_points``, also returns the
+        reflection points (m, k, 3).
         """
         m, k = len(seq_p), seqs.shape[1]
         ok = np.zeros(m, bool)
@@ -175,7 +182,7 @@ class SpecularSolver:
             np.full((len(idx), k), Interaction.REFLECTION, np.int8), seqs[seq_p[idx]], np.zeros((len(idx), 3)),
         )  # fmt: skip
         ok[idx] = good
-        return ok
+        return (ok, points) if with_points else ok
 
     def line_of_sight(self, tx: np.ndarray, rx: np.ndarray) -> list[PathBatch]:
         """Unblocked direct paths from ``tx`` to receivers ``rx`` (n, 3)."""

@@ -9,6 +9,8 @@ Stages, each in a module of its own:
 3. :mod:`.specular` solves each (sequence, receiver) pair exactly by the image method.
 4. :mod:`.diffraction` launches Keller-cone rays from the lit edges and solves the
    singly diffracted paths (with reflections before and after) exactly.
+5. :mod:`.diffuse` scatters from the lit rough surfaces (S > 0) towards each receiver,
+   on patches refined with the distance, as the last interaction of a path.
 
 Results do not depend on how receivers are split into calls: every call bins its
 receivers on the same lattice of cells, fixed in space.
@@ -25,6 +27,7 @@ from ..scene import Scene
 from ..stages import STAGES
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .diffraction import CONE_STEP, DiffractionStage
+from .diffuse import DiffuseStage
 from .paths import Paths
 from .polarimetry import FaceMaterials, PathBatch
 from .reflectors import Reflectors, group_reflectors
@@ -62,6 +65,8 @@ class TracerPlan:
         Their cells (index 0 unused).
     diffraction : DiffractionCandidates or None
     diffraction_cells : CandidateCells or None
+    diffuse_lit : (l, 3) int64 or None
+        (order of A, A, rough triangle) pairs lit for diffuse scattering.
     """
 
     tx: np.ndarray
@@ -76,6 +81,7 @@ class TracerPlan:
     cells: list
     diffraction: object
     diffraction_cells: object
+    diffuse_lit: np.ndarray | None = None
 
 
 class Tracer:
@@ -107,6 +113,9 @@ class Tracer:
     plan : TracerPlan, optional
         Candidates found by another tracer of the same scene and settings (:meth:`plan`):
         no rays are shot, the receivers must lie in the plan's lattice.
+    diffuse : bool
+        Add diffuse scattering from surfaces whose material has a scattering coefficient
+        S > 0 (none of the built-in materials has by default).
     """
 
     def __init__(
@@ -120,6 +129,7 @@ class Tracer:
         cone_step: float = CONE_STEP,
         min_gain_db: float | None = MIN_GAIN_DB,
         plan: TracerPlan | None = None,
+        diffuse: bool = True,
     ):
         if tx is None:
             if scene.transmitter is None:
@@ -165,6 +175,8 @@ class Tracer:
                 np.repeat(np.arange(len(self.wedges.facet_start) - 1), np.diff(self.wedges.facet_start))
             ] = True
             lit_faces = lit_faces[self.wedges.face_facet] & (self.wedges.face_facet >= 0)
+        rough = self.materials.rough_faces if diffuse and k else np.zeros(scene.n_triangles, bool)
+        hit_faces = lit_faces if not rough.any() else (rough if lit_faces is None else lit_faces | rough)
         if plan is not None:
             self.shot = Shot(
                 plan.n_rays, float(np.sqrt(4 * np.pi / plan.n_rays)), plan.sequences, [], 0, [], []
@@ -172,7 +184,7 @@ class Tracer:
         elif self.reflectors.n and k:
             with STAGES("shooting"):
                 self.shot: Shot = shoot(
-                    self.caster, self.reflectors, tx, k, int(n_rays), hit_faces=lit_faces, hit_orders=k
+                    self.caster, self.reflectors, tx, k, int(n_rays), hit_faces=hit_faces, hit_orders=k
                 )
         else:
             empty = [np.zeros((0, j), np.int64) for j in range(1, k + 1)]
@@ -201,6 +213,12 @@ class Tracer:
                 self.shot.sequences,
                 self._lit_pairs() if plan is None else np.zeros((0, 3), np.int64),
                 cone_step,
+            )
+        self.diffuse: DiffuseStage | None = None
+        if rough.any():
+            lit = plan.diffuse_lit if plan is not None else self._lit_rough(rough)
+            self.diffuse = DiffuseStage(
+                scene, self.reflectors, self.solver, self.materials, tx, k, self.shot.sequences, lit
             )
         self._cell_cache: dict = {}
         if plan is not None:
@@ -235,6 +253,7 @@ class Tracer:
             cells=cells,
             diffraction=None if d is None else d.candidates,
             diffraction_cells=d_cells,
+            diffuse_lit=None if self.diffuse is None else self.diffuse.lit,
         )
 
     @classmethod
@@ -250,6 +269,7 @@ class Tracer:
             plan.cone_step,
             plan.min_gain_db,
             plan=plan,
+            diffuse=plan.diffuse_lit is not None,
         )
 
     @property
@@ -262,6 +282,18 @@ class Tracer:
         """Embree queries issued so far, all stages together."""
         extra = self.diffraction.rays_cast if self.diffraction is not None else 0
         return self.shot.rays_cast + self.solver.rays_cast + extra
+
+    def _lit_rough(self, rough: np.ndarray) -> np.ndarray:
+        """(order of A, A, triangle) for every rough triangle hit by a ray after sequence A."""
+        rows = []
+        for a, hits in enumerate(self.shot.hits):
+            if a >= self.max_reflections or not len(hits):
+                continue
+            h = hits[rough[hits[:, 1]]]
+            rows.append(np.column_stack([np.full(len(h), a), h[:, 0], h[:, 1]]))
+        if not rows:
+            return np.zeros((0, 3), np.int64)
+        return np.unique(np.concatenate(rows), axis=0).astype(np.int64)
 
     def _lit_pairs(self) -> np.ndarray:
         """(order of A, A, wedge) for every wedge face hit by a ray after sequence A."""
@@ -309,6 +341,9 @@ class Tracer:
                 for cand_p, rx_p in self.diffraction.cells(lattice).pairs(rx, _PAIR_BATCH):
                     with STAGES("diffraction solve"):
                         batches += self.diffraction.solve(cand_p, rx_p, rx)
+            if self.diffuse is not None:
+                with STAGES("diffuse"):
+                    batches += self.diffuse.solve(rx)
         with STAGES("exact solve"):
             return self._assemble(rx, batches)
 

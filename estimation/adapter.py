@@ -15,7 +15,9 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from .data import KINDS, SequenceSet
+from mmwsim.trajectories.motion import KINDS
+
+from .data import SequenceSet
 from .errors import EstimationError
 
 __all__ = [
@@ -164,7 +166,6 @@ def load_splits(
     info : dict describing the data (path, content hash, grid, splits and their sizes)
     """
     from mmwsim.errors import MmwsimError
-    from mmwsim.trajectories import KINDS as TRAJ_KINDS
     from mmwsim.trajectories import read_trajectories
 
     ds = open_dataset(path) if dataset is None else dataset
@@ -185,7 +186,7 @@ def load_splits(
             keep = ~t.holdout
         elif sub:
             raise EstimationError(f"unknown split {name!r} (use SPLIT, SPLIT/holdout or SPLIT/seen)")
-        names = np.asarray(TRAJ_KINDS)[t.kind[keep]]
+        names = np.asarray(KINDS)[t.kind[keep]]
         sets[name] = sequence_set(table, t.positions[keep], names, threshold)
     info = {
         "dataset": str(Path(path).resolve()),

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from .data import KINDS
+from mmwsim.trajectories.motion import KINDS
+
 from .evaluation import Evaluation
 
 __all__ = [
@@ -20,8 +21,8 @@ __all__ = [
     "cost_table",
     "plot_error_vs_length",
     "write_report",
-    "record_trajectories",
-    "log_trajectories",
+    "record_estimates",
+    "log_estimates",
 ]
 
 _KIND_ORDER = ("vehicle", "pedestrian", "hybrid", "static", "all")
@@ -175,17 +176,17 @@ def write_report(ev: Evaluation, out: str | os.PathLike, noises: list[float]) ->
     return written
 
 
-def record_trajectories(ev: Evaluation, path: str | os.PathLike, footprints=None) -> None:
+def record_estimates(ev: Evaluation, path: str | os.PathLike, footprints=None) -> None:
     """Rerun recording of predicted against true trajectories: ``trajectories/<split>-<i>/{true,<model>}``
     as 2D line strips (static) and the current position on the ``step`` timeline."""
     from mmwsim.recording import Recording
 
     with Recording(path, "evaluation", families=("trajectories",)) as rec:
-        log_trajectories(rec, ev, footprints)
+        log_estimates(rec, ev, footprints)
 
 
-def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
-    """Log the entities of :func:`record_trajectories` into an open ``mmwsim.recording.Recording``.
+def log_estimates(rec: Any, ev: Evaluation, footprints=None) -> None:
+    """Log the entities of :func:`record_estimates` into an open ``mmwsim.recording.Recording``.
 
     True tracks are near-white, each model has a colour of its own (the Trajectories legend says
     which); labels show on hover, as there are many tracks.

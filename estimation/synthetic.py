@@ -9,7 +9,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .data import KINDS, SequenceSet
+from mmwsim.trajectories.motion import KINDS
+
+from .data import SequenceSet
 
 __all__ = ["toy_grid", "random_walks", "toy_sequence_set"]
 
@@ -57,7 +59,7 @@ def random_walks(
     Returns
     -------
     positions : (n, length, 2) float32, metres (1 s per step)
-    kind : (n,) int8, index into :data:`~estimation.data.KINDS`: pedestrian (speed ``speeds[0]``)
+    kind : (n,) int8, index into :data:`mmwsim.trajectories.KINDS`: pedestrian (speed ``speeds[0]``)
         or vehicle (``speeds[1]``)
     """
     rng = np.random.default_rng(seed)

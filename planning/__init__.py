@@ -1,6 +1,6 @@
 """Path determination over a scene: OMPL planners with FCL validity, guided by estimated trajectories.
 
-- :class:`FreeSpace`: valid states and motions of a cylinder agent (FCL, exact swept volume),
+- :class:`AgentSpace`: valid states and motions of a cylinder agent (FCL, exact swept volume),
   optionally restricted to a :class:`Corridor` around estimated trajectories.
 - :func:`plan`: RRT, RRT*, Informed RRT*, BIT*, AORRTC (OMPL) under an iteration or time budget.
 - :func:`shortest_path`: the exact optimum in the same free space (visibility graph).
@@ -9,16 +9,16 @@
 
 from .corridor import QUAD_SEGS, Corridor, load_corridor, save_corridor
 from .errors import PlanningError
-from .freespace import FreeSpace
 from .optimal import ShortestPath, free_region, shortest_path
 from .planners import PLANNERS, PlanResult, Snapshot, ompl_seed, plan, planner_label
 from .record import informed_ellipse, log_plan
+from .space import AgentSpace
 
 __all__ = [
     "PLANNERS",
     "QUAD_SEGS",
     "Corridor",
-    "FreeSpace",
+    "AgentSpace",
     "PlanResult",
     "PlanningError",
     "ShortestPath",

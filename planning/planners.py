@@ -1,7 +1,7 @@
-"""Sampling-based planners from OMPL over a :class:`FreeSpace`: RRT, RRT*, Informed RRT*, BIT*, AORRTC.
+"""Sampling-based planners from OMPL over a :class:`AgentSpace`: RRT, RRT*, Informed RRT*, BIT*, AORRTC.
 
 The state space is the plane bounded by the free space's region; validity and motions are
-answered by :class:`FreeSpace` (certificate, then FCL). RRT-family planners take no custom
+answered by :class:`AgentSpace` (certificate, then FCL). RRT-family planners take no custom
 sampler, so a corridor restricts sampling through the bounds (the corridor's bounding box)
 and rejection in the motion validator.
 
@@ -24,7 +24,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from .errors import PlanningError
-from .freespace import FreeSpace
+from .space import AgentSpace
 
 __all__ = ["PLANNERS", "PlanResult", "Snapshot", "plan", "planner_label", "ompl_seed"]
 
@@ -146,7 +146,7 @@ def ompl_seed(seed: int) -> int:
 
 
 def plan(
-    space: FreeSpace,
+    space: AgentSpace,
     start,
     goal,
     planner: str = "irrtstar",
@@ -160,7 +160,7 @@ def plan(
 
     Parameters
     ----------
-    space : FreeSpace
+    space : AgentSpace
     start, goal : (2,) float
         Metres; must be valid states (else :class:`PlanningError`).
     planner : str
@@ -280,7 +280,7 @@ def plan(
     )
 
 
-def _path_problem(space: FreeSpace, path: np.ndarray, s: np.ndarray, g: np.ndarray) -> str | None:
+def _path_problem(space: AgentSpace, path: np.ndarray, s: np.ndarray, g: np.ndarray) -> str | None:
     """Why a returned path is unusable, or None: ends must match and every step pass the exact test."""
     if len(path) < 2 or not (np.allclose(path[0], s, atol=1e-9) and np.allclose(path[-1], g, atol=1e-9)):
         return "the planner returned a path that does not join start and goal"
@@ -292,7 +292,7 @@ def _path_problem(space: FreeSpace, path: np.ndarray, s: np.ndarray, g: np.ndarr
 
 def _motion_validator(ob, si, check):
     class _Motion(ob.MotionValidator):
-        """Exact motion validation delegated to FreeSpace.motion_valid (swept volume)."""
+        """Exact motion validation delegated to AgentSpace.motion_valid (swept volume)."""
 
         def checkMotion(self, s1, s2, *last_valid):
             # The planners used here only call the two-state form.

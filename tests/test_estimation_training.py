@@ -16,10 +16,10 @@ from estimation import (
     EstimationError,
     Estimator,
     TrainConfig,
-    fingerprint_bits,
     load_checkpoint,
     train,
 )
+from estimation.noise import fingerprint_bits
 from estimation.synthetic import toy_sequence_set
 from mmwsim.cli import main
 from mmwsim.errors import MmwsimError

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from estimation.names import CLASSICAL_NAMES, TASKS
+
+from ..fingerprints.noise import SIGMA_DB
+
 EPILOG = """\
 Each RUN is a folder written by `mmwsim train`, or the name of a classical tracker that needs no
 training: knn-kalman (the paper's baseline: nearest-fingerprint matching on the data-set grid plus a
@@ -31,10 +35,16 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("runs", nargs="+", metavar="RUN", help="run folder, knn-kalman or match-cv")
+    p.add_argument(
+        "runs", nargs="+", metavar="RUN", help=f"run folder, or one of {', '.join(CLASSICAL_NAMES)}"
+    )
     p.add_argument("--dataset", help="data set (or toy spec) to evaluate on (default: the first run's)")
     p.add_argument(
-        "--noise", type=float, nargs="+", default=[6.0, 9.0], help="noise levels, dB (default 6 9)"
+        "--noise",
+        type=float,
+        nargs="+",
+        default=[SIGMA_DB, 9.0],
+        help=f"noise levels, dB (default {SIGMA_DB:g} 9)",
     )
     p.add_argument(
         "--split",
@@ -55,7 +65,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--task",
-        choices=("tracking", "forecasting"),
+        choices=TASKS,
         default="tracking",
         help="task of the knn-kalman baseline (networks use their own; default tracking)",
     )
@@ -73,17 +83,7 @@ def _evaluate(args) -> int:
 
     import torch
 
-    from estimation import (
-        EstimationError,
-        Estimator,
-        KnnKalmanMethod,
-        MatchSmootherMethod,
-        NetworkMethod,
-        evaluate,
-        read_run_info,
-        record_trajectories,
-        write_report,
-    )
+    from estimation import EstimationError, NetworkMethod, evaluate, method, record_estimates, write_report
     from estimation.adapter import load_sets, scene_footprints
 
     torch.set_num_threads(max(1, args.threads))
@@ -91,26 +91,11 @@ def _evaluate(args) -> int:
         raise EstimationError(f"--noise {args.noise}: noise levels must be >= 0 dB")
     if args.rrd and not args.rrd.endswith(".rrd"):
         raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
-    methods, dataset = [], args.dataset
-    for run in args.runs:
-        if run == "knn-kalman":
-            methods.append(
-                KnnKalmanMethod(args.task, args.t_obs, args.horizon, args.table_length, seed=args.seed)
-            )
-            continue
-        if run == "match-cv":
-            methods.append(MatchSmootherMethod())
-            continue
-        if not Path(run).is_dir():
-            raise EstimationError(f"{run}: not a run folder (nor knn-kalman or match-cv)")
-        info = read_run_info(run)
-        est = Estimator.load(run)
-        summary = info.get("summary", {})
-        name = Path(run).resolve().name  # the folder name labels the run in tables and recordings
-        methods.append(
-            NetworkMethod(est, name, summary.get("train_seconds", float("nan")), summary.get("epochs", 0))
-        )
-        dataset = dataset or info.get("data", {}).get("dataset")
+    classical = dict(
+        task=args.task, t_obs=args.t_obs, horizon=args.horizon, fit_length=args.table_length, seed=args.seed
+    )
+    methods = [method(run, **classical) for run in args.runs]
+    dataset = args.dataset or next((m.dataset for m in methods if getattr(m, "dataset", None)), None)
     if not dataset:
         raise EstimationError("no data set: give --dataset (needed when only classical trackers are named)")
     names = tuple(dict.fromkeys([*args.split, args.val_split]))
@@ -135,7 +120,7 @@ def _evaluate(args) -> int:
     )
     written = write_report(ev, args.out, list(args.noise))
     if args.rrd:
-        record_trajectories(ev, args.rrd, footprints=scene_footprints(dataset))
+        record_estimates(ev, args.rrd, footprints=scene_footprints(dataset))
         written.append(Path(args.rrd))
     print((Path(args.out) / "accuracy.md").read_text())
     print((Path(args.out) / "cost.md").read_text())

@@ -101,7 +101,7 @@ def _plan(args) -> int:
 
     scene = load_scene(scene_spec(args))
     corridor = planning.load_corridor(args.corridor, args.corridor_width) if args.corridor else None
-    space = planning.FreeSpace(scene, radius=args.radius, corridor=corridor, resolution=args.resolution)
+    space = planning.AgentSpace(scene, radius=args.radius, corridor=corridor, resolution=args.resolution)
     result = planning.plan(
         space,
         start,

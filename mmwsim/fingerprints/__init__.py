@@ -1,6 +1,6 @@
 """Power-delay profiles (PDP) and beamformed fingerprints (BFF)."""
 
-from .bits import BINS, SIGMA_DB, THRESHOLD_DBM, FingerprintSampler, detection_probability, fingerprints
+from .noise import BINS, SIGMA_DB, THRESHOLD_DBM, FingerprintSampler, detection_probability, fingerprints
 from .pdp import (
     N_BINS,
     RX_GAIN_DBI,

@@ -37,7 +37,7 @@ from mmwsim.scene import Scene
 from .corridor import Corridor
 from .errors import PlanningError
 
-__all__ = ["FreeSpace"]
+__all__ = ["AgentSpace"]
 
 # Margins below this (metres) are left to the exact test rather than walked in tiny strides.
 _MIN_STRIDE = 1e-3
@@ -45,7 +45,7 @@ _MAX_STRIDES = 64
 _MAX_NODES = 1 << 23
 
 
-class FreeSpace:
+class AgentSpace:
     """Valid states and motions of a cylinder agent among a scene's buildings.
 
     Parameters
@@ -290,6 +290,43 @@ class FreeSpace:
                 f"{at} is in collision: closer than the agent radius {self.radius:g} m to an obstacle"
             )
         return x, y
+
+    def clear_nodes(self) -> np.ndarray:
+        """(k, 2) float64 nodes of the clearance raster where the agent certainly fits (a margin of
+        at least a tenth of its radius), metres."""
+        clear = np.argwhere(self.margin > 0.1 * self.radius)  # raster node indices, x first
+        return self.bounds[0] + self.resolution * clear
+
+    def nearest_free_point(self, point) -> np.ndarray | None:
+        """Where a planner can start or end closest to ``point``.
+
+        Parameters
+        ----------
+        point : (2,) float, metres
+
+        Returns
+        -------
+        (2,) float64 or None
+            ``point`` itself when the agent may stand there (inside the corridor, clear of every
+            obstacle), else the nearest of :meth:`clear_nodes`, else None (no free point in the
+            region).
+        """
+        try:
+            return np.array(self.check_endpoint(point, "point"), dtype=np.float64)
+        except PlanningError:
+            pass
+        return self._extreme_node(point, nearest=True)
+
+    def farthest_free_point(self, point) -> np.ndarray | None:
+        """The one of :meth:`clear_nodes` farthest (straight-line) from ``point`` (2,) metres, or None."""
+        return self._extreme_node(point, nearest=False)
+
+    def _extreme_node(self, point, nearest: bool) -> np.ndarray | None:
+        nodes = self.clear_nodes()
+        if not len(nodes):
+            return None
+        d2 = ((nodes - np.asarray(point, dtype=np.float64)) ** 2).sum(axis=1)
+        return nodes[int(np.argmin(d2) if nearest else np.argmax(d2))]
 
     def summary(self) -> str:
         """One line: region, raster and agent."""

@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
+from mmwsim.constants import BINS, THRESHOLD_DBM
+from mmwsim.fingerprints import GridField
 from mmwsim.trajectories.motion import KINDS
 
 from .data import SequenceSet
@@ -58,7 +59,7 @@ class GridTable:
         dBm, numpy or zarr array)
     bins : slice
         Fingerprint bin window (default the data set's ``config["bins"]``, else
-        ``mmwsim.trajectories.FEATURE_BINS``, bins 1..81).
+        the contract's window ``mmwsim.constants.BINS``, bins 1..81).
     dtype : torch dtype of the stored PDP (float16 default; about 0.03 dB resolution at -115 dBm,
         far below the noise).
 
@@ -76,9 +77,7 @@ class GridTable:
             if stored is not None:
                 bins = slice(int(stored[0]), int(stored[1]))
             else:
-                from mmwsim.trajectories import FEATURE_BINS
-
-                bins = FEATURE_BINS
+                bins = slice(*BINS)
         grid = dataset.grid
         valid = np.asarray(dataset.valid, dtype=bool).reshape(-1)
         pdp = dataset.pdp
@@ -104,20 +103,11 @@ class GridTable:
         self.pdp = out
         self._row_of_flat = np.full(grid.size, -1, dtype=np.int64)
         self._row_of_flat[self.flat_index] = np.arange(len(self.flat_index))
-        self._tree: cKDTree | None = None
+        self._field = GridField(grid, pdp, valid)
 
     def rows(self, positions: np.ndarray) -> np.ndarray:
         """Row of the nearest valid grid point for each ``(..., 2)`` position (metres) -> ``(...,)`` int64."""
-        from mmwsim.trajectories import nearest_grid_index
-
-        p = np.asarray(positions, dtype=np.float64)
-        rows = self._row_of_flat[nearest_grid_index(self.grid, p)]
-        bad = rows < 0
-        if bad.any():  # nearest grid point invalid (e.g. within a wall's cell): nearest valid one instead
-            if self._tree is None:
-                self._tree = cKDTree(self.xy)
-            rows[bad] = self._tree.query(p[bad])[1]
-        return rows
+        return self._row_of_flat[self._field.valid_index_at(positions)]
 
 
 def sequence_set(
@@ -135,9 +125,7 @@ def sequence_set(
 
 def dataset_threshold(dataset: Any) -> float:
     """Detection threshold of a data set, dBm: its ``config["threshold_dbm"]``, else its
-    ``threshold_dbm`` attribute, else ``mmwsim.fingerprints.THRESHOLD_DBM``."""
-    from mmwsim.fingerprints import THRESHOLD_DBM
-
+    ``threshold_dbm`` attribute, else ``mmwsim.constants.THRESHOLD_DBM``."""
     stored = (getattr(dataset, "config", None) or {}).get("threshold_dbm")
     return float(stored if stored is not None else getattr(dataset, "threshold_dbm", THRESHOLD_DBM))
 
@@ -158,7 +146,7 @@ def load_splits(
         An already opened data set (``.grid``, ``.valid``, ``.pdp``); opened from ``path`` if None.
     threshold : float, optional
         Detection threshold, dBm (default the data set's ``config["threshold_dbm"]``, else its
-        ``threshold_dbm`` attribute, else ``mmwsim.fingerprints.THRESHOLD_DBM``).
+        ``threshold_dbm`` attribute, else ``mmwsim.constants.THRESHOLD_DBM``).
 
     Returns
     -------

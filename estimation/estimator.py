@@ -11,7 +11,7 @@ from typing import Any, Literal
 import torch
 from torch import nn
 
-from mmwsim.fingerprints.noise import SIGMA_DB
+from mmwsim.constants import SIGMA_DB
 
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
 from .data import Normaliser, SequenceSet

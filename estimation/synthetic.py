@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from mmwsim.constants import THRESHOLD_DBM
 from mmwsim.trajectories.motion import KINDS
 
 from .data import SequenceSet
@@ -22,7 +23,7 @@ def toy_grid(
     spacing: float = 1.0,
     n_beams: int = 8,
     n_bins: int = 12,
-    threshold: float = -115.0,
+    threshold: float = THRESHOLD_DBM,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A rectangular grid and a smooth per-beam PDP on it.
@@ -107,7 +108,7 @@ def toy_sequence_set(
     ix = np.rint(pos[..., 0] - lo[0]).astype(np.int64)
     iy = np.rint(pos[..., 1] - lo[1]).astype(np.int64)
     index = ix + nx * iy
-    return SequenceSet(torch.from_numpy(pdp), xy, index, pos, kind, -115.0, np.stack([lo, hi]))
+    return SequenceSet(torch.from_numpy(pdp), xy, index, pos, kind, THRESHOLD_DBM, np.stack([lo, hi]))
 
 
 TOY_HOLDOUT = (24.0, 24.0, 31.0, 31.0)

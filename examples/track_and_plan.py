@@ -36,7 +36,7 @@ print(ds)
 
 # 2. Fingerprints: bits of (beam, delay bin) drawn with fresh 6 dB noise at every call.
 rng = np.random.default_rng(0)
-test = ds.trajectories("test")
+test = mmwsim.read_trajectories(ds, "test")
 held_out = np.flatnonzero(test.holdout)
 travel = np.linalg.norm(np.diff(test.positions[held_out], axis=1), axis=-1).sum(axis=1)
 pick = held_out[np.argmax(travel)]  # the held-out trajectory that travels farthest

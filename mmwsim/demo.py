@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .constants import SIGMA_DB
 from .errors import MmwsimError
 from .files import write_text_atomic
 
@@ -77,7 +78,7 @@ class DemoConfig:
     epochs: int = 12
     epoch_size: int = 2048
     patience: int = 4
-    sigma: float = 6.0
+    sigma: float = SIGMA_DB
     shown: int = 8
     corridor_width: float = 10.0
     radius: float = 0.5
@@ -335,8 +336,7 @@ def run_demo(
 
 # ---------------------------------------------------------------------- stages
 def _dataset(cfg: DemoConfig, path: Path, progress: bool, log):
-    from .dataset import Dataset
-    from .dataset import generate as generate_dataset
+    from .dataset import Dataset, generate_dataset
     from .dataset.config import resolve_config
     from .scene import load_scene
 

@@ -180,13 +180,6 @@ def camera(extent: np.ndarray | Sequence[Sequence[float]]) -> rrb.EyeControls3D:
     )
 
 
-def _default_extent() -> np.ndarray:
-    """The box of the catalogue's default scene (the demo's), for callers that give none."""
-    from .scene import load_scene
-
-    return load_scene("default").extent
-
-
 def _legend_view(tab: str) -> rrb.Spatial2DView:
     return rrb.Spatial2DView(name="Legend", origin=f"{Entity.LEGEND}/{tab}", background=[20, 20, 24])
 
@@ -207,7 +200,7 @@ def blueprint(
     families : sequence of str
         Any of ``world``, ``coverage``, ``bff``, ``trajectories``, ``training``, ``planner``.
     extent : (2, 3) float, optional
-        Scene box the 3D camera frames, metres; by default the default scene's (the demo's).
+        Scene box the 3D camera frames, metres; without one the viewer frames the content itself.
     timeline : str, optional
         Timeline the time panel opens on; by default the one of the first family that has one.
     config : bool
@@ -218,7 +211,7 @@ def blueprint(
         raise ValueError(f"unknown recording families {sorted(unknown)}")
     tabs: list[Any] = []
     if "world" in families:
-        eye = camera(_default_extent() if extent is None else extent)
+        eye = None if extent is None else camera(extent)
         tabs.append(
             rrb.Horizontal(
                 rrb.Spatial3DView(

@@ -4,13 +4,14 @@ import json
 
 import numpy as np
 import pytest
-from rrd_helpers import check_blueprint, entity_rows
 
 import mmwsim
 from mmwsim.antennas import RotatingHorn
-from mmwsim.dataset import Dataset, generate, record_dataset
+from mmwsim.dataset import Dataset, record_dataset
+from mmwsim.dataset.generate import generate
 from mmwsim.errors import MmwsimError
 from mmwsim.fingerprints import power_delay_profile
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 SMALL = dict(spacing=40.0, max_reflections=2, n_rays=100_000, tile_size=16, path_chunk=64, progress=False)
 

@@ -8,11 +8,11 @@ from collections import Counter
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
-from rrd_helpers import blueprint_count, check_blueprint, entity_rows
 
 from mmwsim.cli import main
 from mmwsim.demo import MODEL
 from mmwsim.trajectories import read_trajectories
+from tests.helpers.rrd import blueprint_count, check_blueprint, entity_rows
 
 
 @pytest.fixture(scope="module")

@@ -15,12 +15,12 @@ import itertools
 
 import numpy as np
 import pytest
-from test_tracer_bruteforce import _in_triangles, _planes, _segment_hits, tiny_city
 
 from mmwsim import Scene, SceneObject, Transmitter, get_material
 from mmwsim.tracer import Interaction, Tracer
 from mmwsim.tracer.wedges import find_wedges
 from scenes.layout import Building, building_mesh, ground_mesh
+from tests.test_tracer_bruteforce import _in_triangles, _planes, _segment_hits, tiny_city
 
 RAYS = 1_000_000
 

@@ -8,12 +8,12 @@ import sys
 import numpy as np
 import pytest
 import torch
-from rrd_helpers import check_blueprint, entity_rows
 
 from estimation import EstimationError, load_splits
 from mmwsim.cli import main
 from mmwsim.scene import ReceiverGrid
 from mmwsim.trajectories import KINDS
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 
 def test_cli_does_not_load_torch():

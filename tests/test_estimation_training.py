@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from rrd_helpers import check_blueprint, entity_rows
 
 from estimation import (
     CHECKPOINT_FORMAT,
@@ -23,6 +22,7 @@ from estimation.noise import fingerprint_bits
 from estimation.synthetic import toy_sequence_set
 from mmwsim.cli import main
 from mmwsim.errors import MmwsimError
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 
 @pytest.fixture(autouse=True)

@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 import shapely
-from rrd_helpers import check_blueprint, entity_rows
 
 import scenes
 from mmwsim.cli import EXIT_NO_SOLUTION, EXIT_USAGE, main
@@ -25,6 +24,7 @@ from planning import (
 )
 from scenes.canonical import wall
 from scenes.layout import Building, building_mesh, ground_mesh
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 R = 0.5
 

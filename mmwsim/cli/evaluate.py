@@ -6,7 +6,7 @@ import argparse
 
 from estimation.names import CLASSICAL_NAMES, TASKS
 
-from ..fingerprints.noise import SIGMA_DB
+from ..constants import SIGMA_DB
 
 EPILOG = """\
 Each RUN is a folder written by `mmwsim train`, or the name of a classical tracker that needs no

@@ -6,7 +6,7 @@ import argparse
 
 from estimation.names import LOSSES, MODEL_NAMES, TASKS
 
-from ..fingerprints.noise import SIGMA_DB
+from ..constants import SIGMA_DB
 
 EPILOG = """\
 The run folder RUN receives run.json (settings and data description), checkpoint.pt (after every

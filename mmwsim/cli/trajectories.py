@@ -108,7 +108,8 @@ def _open(args):
 
 def _run(args) -> int:
     from ..recording import Recording
-    from ..trajectories import generate, generate_for_dataset, log_trajectories, split, write_trajectories
+    from ..trajectories import generate_for_dataset, log_trajectories, split, write_trajectories
+    from ..trajectories.generate import generate
     from ..trajectories.splits import check_region
     from . import parse_vector
 

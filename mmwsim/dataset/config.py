@@ -8,8 +8,8 @@ from typing import Literal
 import numpy as np
 
 from ..config import Int2, StrictModel, Vec2, Vec3, content_hash
+from ..constants import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
 from ..errors import MmwsimError
-from ..fingerprints import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
 
 __all__ = ["CodebookConfig", "GenerateConfig", "resolve_config", "scene_fingerprint"]
 

@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..geometry.freespace import CoverageMask, FreeSpace, scene_obstacles
 from .errors import TrajectoryError
-from .freespace import CoverageMask, FreeSpace
-from .motion import AVOID, KINDS, MODELS, NONE, ROAD, SPEED, STOP, TURN, MotionModel, motion_model
+from .motion import AVOID, KINDS, MOTION_MODELS, NONE, ROAD, SPEED, STOP, TURN, MotionModel, motion_model
 from .streets import StreetNetwork
 from .trajectories import Trajectories
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from ..dataset import Dataset
     from ..scene import Scene
 
-__all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_for_dataset", "generate_kind", "check_length"]
+__all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_for_dataset", "generate_kind"]
 
 MIN_LENGTH = 3
 MAX_LENGTH = 30
@@ -164,7 +164,7 @@ def generate_kind(
     Parameters
     ----------
     scene : Scene
-        Buildings (footprints) and area (receiver-grid bounds); may be None when
+        Obstacles (:func:`~mmwsim.geometry.scene_obstacles`) and area (receiver-grid bounds); may be None when
         ``free_space`` is given.
     kind : str or MotionModel
         ``pedestrian``, ``vehicle``, ``hybrid``, ``static`` or a custom model.
@@ -269,11 +269,11 @@ def generate(
     unknown = set(counts) - set(KINDS)
     if unknown:
         raise TrajectoryError(f"unknown trajectory kind {sorted(unknown)[0]!r} (use {', '.join(KINDS)})")
-    models = {**MODELS, **(models or {})}
+    models = {**MOTION_MODELS, **(models or {})}
     bounds = (
         scene.receivers.bounds if free_space_bounds is None else np.asarray(free_space_bounds, dtype=float)
     )
-    footprints = scene.footprints if scene is not None else []
+    obstacles = scene_obstacles(scene) if scene is not None else []
     name = f"scene {scene.name!r}" if scene is not None else "area"
     net = None
     parts: list[Trajectories] = []
@@ -285,14 +285,14 @@ def generate(
         if n == 0:
             continue
         model = models[kind]
-        fs = FreeSpace(footprints, bounds, model.clearance, coverage, name=name)
+        fs = FreeSpace(obstacles, bounds, model.clearance, coverage, name=name)
         streets = None
         if kind == "vehicle" and vehicles_on_streets:
             if net is None:
                 net = (
                     StreetNetwork.from_scene(scene, street_half_width, bounds=bounds)
                     if scene is not None
-                    else StreetNetwork.from_footprints(footprints, bounds, street_half_width)
+                    else StreetNetwork.from_footprints([], bounds, street_half_width)
                 )
             streets = net
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(code,)))

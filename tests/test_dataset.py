@@ -38,6 +38,19 @@ def test_layout_and_attrs(store):
     assert not (store.parent / "default.zarr.partial").exists()
 
 
+def test_summary_counts_valid_receivers_and_paths(store):
+    """The store's summary (``n_valid``, ``n_paths``) is what its arrays hold."""
+    ds = Dataset.open(store)
+    info = ds.root.attrs["mmwsim"]
+    assert info["complete"] is True
+    assert info["n_valid"] == int(ds.valid.sum()) > 0
+    assert info["n_paths"] == int(np.asarray(ds.root["grid/paths/count"][:]).sum()) > info["n_valid"]
+    # valid means outdoors and detected: some noise-free PDP entry of the window at the threshold
+    lo, hi = ds.config["bins"]
+    detected = (np.asarray(ds.pdp[:])[:, :, lo:hi] >= ds.config["threshold_dbm"]).any(axis=(1, 2))
+    np.testing.assert_array_equal(ds.valid, ds.outdoors & detected)
+
+
 def test_valid_means_detected(store):
     ds = Dataset.open(store)
     pdp = ds.pdp[:].astype(np.float32)

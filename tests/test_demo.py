@@ -14,6 +14,8 @@ from mmwsim.demo import MODEL
 from mmwsim.trajectories import read_trajectories
 from tests.helpers.rrd import blueprint_count, check_blueprint, entity_rows
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):

@@ -160,6 +160,7 @@ def _compare(scene: Scene, rx: np.ndarray, kmax: int) -> int:
     tx = scene.transmitter.array
     ref = brute_force(scene, tx, rx, kmax)
     got = traced(scene, tx, rx, kmax)
+    assert ref, "the reference found no path: the comparison would pass vacuously"
     missed = sorted(set(ref) - set(got))
     extra = sorted(set(got) - set(ref))
     assert not missed, f"{len(missed)} of {len(ref)} paths missed, e.g. {missed[:3]}"

@@ -274,3 +274,24 @@ def test_free_points_snap_into_the_corridor_clear_of_buildings():
     q = space.farthest_free_point((200.0, 150.0))
     assert space.exact_state_valid(*q) and space.in_corridor(*q)
     assert np.hypot(q[0] - 200.0, q[1] - 150.0) > 59.0  # the far end of the 50 m + 10 m corridor
+
+
+def test_lift_decides_which_low_objects_block():
+    """The agent stands ``lift`` above the lowest point: a 0.5 m bench blocks it at the default
+    0.2 m lift (map and FCL alike) and is stepped over at 1 m, the wall stays an obstacle."""
+    mat = get_material("concrete")
+    bench = building_mesh([Building(10.0, -2.0, 14.0, 2.0, 0.5)])
+    scene = Scene(
+        [
+            SceneObject("ground", ground_mesh(-50.0, -50.0, 50.0, 50.0), mat, "ground"),
+            SceneObject("bench", bench, mat, "other"),
+            SceneObject("wall", wall(0.0, -20.0, 0.0, 20.0, 10.0), mat, "other"),
+        ],
+        name="bench",
+    )
+    low, high = AgentSpace(scene, radius=R), AgentSpace(scene, radius=R, lift=1.0)
+    assert low.z0 == pytest.approx(0.2) and high.z0 == pytest.approx(1.0)
+    assert not low.exact_state_valid(12.0, 0.0) and not low.state_valid(12.0, 0.0)
+    assert high.exact_state_valid(12.0, 0.0) and high.state_valid(12.0, 0.0)
+    assert not high.exact_motion_valid(-5.0, 0.0, 5.0, 0.0)  # the 10 m wall still blocks
+    assert len(high.obstacles) < len(low.obstacles)  # the bench left the 2D map

@@ -1,21 +1,30 @@
-"""Scene model and scene files."""
+"""Scene model, scene files and the registry of named scenes.
 
-from .loaders import load_mesh_file, load_mitsuba, load_scene, load_toml
-from .objects import ReceiverGrid, SceneObject, Transmitter
-from .osm import OsmArea, OsmScene, OsmWarning, load_osm
-from .scene import Scene
+Names load on first use, so the registry (:mod:`.catalogue`) can list the catalogue without
+importing trimesh.
+"""
 
-__all__ = [
-    "OsmArea",
-    "OsmScene",
-    "OsmWarning",
-    "ReceiverGrid",
-    "Scene",
-    "SceneObject",
-    "Transmitter",
-    "load_mesh_file",
-    "load_mitsuba",
-    "load_osm",
-    "load_scene",
-    "load_toml",
-]
+from __future__ import annotations
+
+from ..lazy import lazy_exports
+
+_EXPORTS = {
+    "load_named_scene": ".catalogue",
+    "register_scene": ".catalogue",
+    "scene_names": ".catalogue",
+    "load_mesh_file": ".loaders",
+    "load_mitsuba": ".loaders",
+    "load_scene": ".loaders",
+    "load_toml": ".loaders",
+    "ReceiverGrid": ".objects",
+    "SceneObject": ".objects",
+    "Transmitter": ".objects",
+    "OsmArea": ".osm",
+    "OsmScene": ".osm",
+    "OsmWarning": ".osm",
+    "load_osm": ".osm",
+    "Scene": ".scene",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -193,7 +193,7 @@ def log_estimates(rec: Any, ev: Evaluation, footprints=None) -> None:
     """
     import rerun as rr
 
-    from mmwsim.recording import Entity, Timeline, log_legend, log_map_context, north_up
+    from mmwsim.recording import Entity, log_legend, log_map_context, log_track, north_up
 
     north_up(rec, Entity.TRAJECTORIES)
     if footprints:
@@ -219,28 +219,15 @@ def log_estimates(rec: Any, ev: Evaluation, footprints=None) -> None:
             ident = f"{_slug(split)}-{i}"
             label = KINDS[int(ex["kind"][i])]
             for src, arr in sources.items():
-                rec.log(
+                log_track(
+                    rec,
                     Entity.trajectory(ident, src),
-                    rr.LineStrips2D(
-                        [arr[i]],
-                        colors=[colours[src]],
-                        radii=rr.Radius.ui_points(2.5 if src == "true" else 1.8),
-                        labels=[f"{split} {i}: {label} {src}"],
-                        show_labels=False,
-                    ),
-                    static=True,
+                    arr[i],
+                    colours[src],
+                    f"{split} {i}: {label} {src}",
+                    width=2.5 if src == "true" else 1.8,
+                    head=5.0,
                 )
-            for t in range(true.shape[1]):
-                rec.set_time(Timeline.STEP, t)
-                for src, arr in sources.items():
-                    rec.log(
-                        Entity.trajectory(ident, src) + "/now",
-                        rr.Points2D(
-                            [arr[i][min(t, len(arr[i]) - 1)]],
-                            colors=[colours[src]],
-                            radii=rr.Radius.ui_points(5.0),
-                        ),
-                    )
     log_legend(
         rec,
         "trajectories",

@@ -35,7 +35,7 @@ import numpy as np
 
 from .constants import SIGMA_DB
 from .errors import MmwsimError
-from .files import write_text_atomic
+from .files import RECORDING_SUFFIX, check_suffix, write_text_atomic
 
 if TYPE_CHECKING:
     import planning
@@ -231,8 +231,7 @@ def check_outputs(out: str | os.PathLike, rrd: str | os.PathLike | None = None) 
     if out.exists() and not out.is_dir():
         raise MmwsimError(f"--out {out}: exists and is not a folder")
     rrd_path = out / RECORDING_FILE if rrd is None else Path(rrd)
-    if rrd_path.suffix != ".rrd":
-        raise MmwsimError(f"--rrd {rrd_path}: a recording must end in .rrd")
+    check_suffix(rrd_path, RECORDING_SUFFIX, "--rrd")
     if rrd_path.exists() and rrd_path.is_dir():
         raise MmwsimError(f"--rrd {rrd_path}: is a folder")
     parent = rrd_path.parent

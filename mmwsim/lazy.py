@@ -16,35 +16,39 @@ __all__ = ["lazy_exports"]
 
 
 def lazy_exports(
-    package: str, exports: dict[str, str]
-) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
-    """The module ``__getattr__`` and ``__dir__`` of a package with lazily loaded public names.
+    package: str, exports: dict[str, tuple[str, ...]]
+) -> tuple[list[str], Callable[[str], Any], Callable[[], list[str]]]:
+    """The ``__all__``, ``__getattr__`` and ``__dir__`` of a package with lazily loaded public names.
 
     Parameters
     ----------
     package : str
         The package's ``__name__``.
     exports : dict
-        Public name -> the submodule that defines it, relative to the package (``".store"``), or
-        ``".module:attribute"`` where the public name differs from the attribute.
+        Submodule, relative to the package (``".store"``) -> the public names it defines; a name
+        ``"public=attribute"`` exports the submodule's ``attribute`` as ``public``.
 
     Returns
     -------
-    __getattr__, __dir__
+    __all__, __getattr__, __dir__
         To assign at the package's top level.
     """
+    where: dict[str, tuple[str, str]] = {}
+    for module, names in exports.items():
+        for entry in names:
+            public, _, attribute = entry.partition("=")
+            where[public] = (module, attribute or public)
 
     def __getattr__(name: str) -> Any:
         try:
-            target = exports[name]
+            module, attribute = where[name]
         except KeyError:
             raise AttributeError(f"module {package!r} has no attribute {name!r}") from None
-        module, _, attribute = target.partition(":")
-        value = getattr(importlib.import_module(module, package), attribute or name)
+        value = getattr(importlib.import_module(module, package), attribute)
         setattr(sys.modules[package], name, value)  # later look-ups skip __getattr__
         return value
 
     def __dir__() -> list[str]:
-        return sorted(set(exports) | set(vars(sys.modules[package])))
+        return sorted(set(where) | set(vars(sys.modules[package])))
 
-    return __getattr__, __dir__
+    return sorted(where), __getattr__, __dir__

@@ -86,11 +86,13 @@ def _evaluate(args) -> int:
     from estimation import EstimationError, NetworkMethod, evaluate, method, record_estimates, write_report
     from estimation.adapter import load_sets, scene_footprints
 
+    from ..files import RECORDING_SUFFIX, check_suffix
+
     torch.set_num_threads(max(1, args.threads))
     if any(n < 0 for n in args.noise):
         raise EstimationError(f"--noise {args.noise}: noise levels must be >= 0 dB")
-    if args.rrd and not args.rrd.endswith(".rrd"):
-        raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
+    if args.rrd:
+        check_suffix(args.rrd, RECORDING_SUFFIX, "--rrd")
     classical = dict(
         task=args.task, t_obs=args.t_obs, horizon=args.horizon, fit_length=args.table_length, seed=args.seed
     )

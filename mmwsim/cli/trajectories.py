@@ -107,6 +107,7 @@ def _open(args):
 
 
 def _run(args) -> int:
+    from ..files import RECORDING_SUFFIX, check_suffix
     from ..recording import Recording
     from ..trajectories import generate_for_dataset, log_trajectories, split, write_trajectories
     from ..trajectories.generate import generate
@@ -119,8 +120,8 @@ def _run(args) -> int:
         if args.holdout_region
         else None
     )
-    if args.rrd and not args.rrd.endswith(".rrd"):
-        raise MmwsimError(f"{args.rrd}: a recording must end in .rrd")
+    if args.rrd:
+        check_suffix(args.rrd, RECORDING_SUFFIX)
     counts = {
         "pedestrian": args.pedestrian,
         "vehicle": args.vehicle,

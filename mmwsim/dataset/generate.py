@@ -7,6 +7,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from ..errors import MmwsimError
+from ..files import RECORDING_SUFFIX, check_suffix
 from ..stages import STAGES
 from .config import DEFAULT_PATH_CHUNK, DEFAULT_TILE, CodebookConfig, GenerateConfig, resolve_config
 from .store import StoreWriter
@@ -82,8 +83,8 @@ def generate(
     if workers < 1:
         raise MmwsimError(f"--workers must be at least 1, got {workers}")
     out = Path(out)
-    if rrd is not None and Path(rrd).suffix != ".rrd":
-        raise MmwsimError(f"{rrd}: a recording must end in .rrd")
+    if rrd is not None:
+        check_suffix(rrd, RECORDING_SUFFIX)
     scene_obj = load_scene(scene, transmitter=transmitter)
     cfg = resolve_config(
         scene,

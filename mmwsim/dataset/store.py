@@ -334,17 +334,8 @@ class Dataset:
 
     # ------------------------------------------------------------------ lookups
     def nearest(self, xy: np.ndarray) -> np.ndarray:
-        """Index of the grid point nearest to each position.
-
-        Parameters
-        ----------
-        xy : (..., 2) or (..., 3) float
-            Positions, metres (z ignored); points off the grid snap to its edge.
-
-        Returns
-        -------
-        (...) int64
-        """
+        """(...) int64 index of the grid point nearest to each (..., 2) or (..., 3) position, metres
+        (:meth:`ReceiverGrid.nearest_index <mmwsim.scene.ReceiverGrid.nearest_index>`)."""
         return self.grid.nearest_index(xy)
 
     def paths(self, index: np.ndarray | int) -> Paths:

@@ -9,22 +9,11 @@ from __future__ import annotations
 from ..lazy import lazy_exports
 
 _EXPORTS = {
-    "load_named_scene": ".catalogue",
-    "register_scene": ".catalogue",
-    "scene_names": ".catalogue",
-    "load_mesh_file": ".loaders",
-    "load_mitsuba": ".loaders",
-    "load_scene": ".loaders",
-    "load_toml": ".loaders",
-    "ReceiverGrid": ".objects",
-    "SceneObject": ".objects",
-    "Transmitter": ".objects",
-    "OsmArea": ".osm",
-    "OsmScene": ".osm",
-    "OsmWarning": ".osm",
-    "load_osm": ".osm",
-    "Scene": ".scene",
+    ".catalogue": ("load_named_scene", "register_scene", "scene_names"),
+    ".loaders": ("load_mesh_file", "load_mitsuba", "load_scene", "load_toml"),
+    ".objects": ("ReceiverGrid", "SceneObject", "Transmitter"),
+    ".osm": ("OsmArea", "OsmScene", "OsmWarning", "load_osm"),
+    ".scene": ("Scene",),
 }
 
-__all__ = sorted(_EXPORTS)
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -77,9 +77,9 @@ def imports_of(module: str, path: Path, known: dict[str, Path]) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = relative(node.level, node.module) if node.level else node.module or ""
             targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names]
-        else:  # a lazy-export table: {"Name": ".module" or ".module:attribute"}
-            values = [v.value for v in node.value.values if isinstance(v, ast.Constant)]
-            targets = [relative(1, v.partition(":")[0].lstrip(".")) for v in values]
+        else:  # a lazy-export table: {".module": ("Name", ...)}
+            keys = [k.value for k in node.value.keys if isinstance(k, ast.Constant)]
+            targets = [relative(1, k.lstrip(".")) for k in keys]
         for t in targets:
             hit = _resolve(t, known)
             if hit is not None and hit != module:

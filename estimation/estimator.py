@@ -190,7 +190,7 @@ class Estimator(nn.Module):
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
         grid-reading network its smoothed candidates ``(xy (B, T, k, 2) metres, posteriors
-        (B, T, k, P))`` (see :func:`~estimation.models.candidates.candidate_features`) and the
+        (B, T, k, P))`` (see :func:`~estimation.smoothing.hmm.candidate_features`) and the
         classical estimate ``(B, T, 2)`` metres it starts from (``net.smoothed``), from the bits or
         from their :meth:`search` result ``found``."""
         if not self.uses_grid:

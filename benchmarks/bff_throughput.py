@@ -32,7 +32,7 @@ def main() -> None:
     ap.add_argument("--spacing", type=float, default=8.0)
     ap.add_argument("--n", type=int, default=400_000, help="fingerprints per timed call")
     args = ap.parse_args()
-    from mmwsim.fingerprints import FingerprintSampler, fingerprints
+    from mmwsim.fingerprints import FingerprintSampler, NoiseModel
 
     if args.dataset:
         from mmwsim.dataset import Dataset
@@ -57,7 +57,7 @@ def main() -> None:
         best = min(_timed(lambda th=threads: sampler.sample(idx, rng, threads=th)) for _ in range(3))
         print(f"sampler, {threads} thread(s): {args.n / best / 1e6:.2f} M fingerprints/s")
     sub = np.asarray(pdp[idx[:20_000] % len(pdp)], dtype=np.float32)
-    best = min(_timed(lambda: fingerprints(sub, rng)) for _ in range(2))
+    best = min(_timed(lambda: NoiseModel().bits(sub, rng)) for _ in range(2))
     print(f"literal float32 Gaussian noise, 1 thread: {len(sub) / best / 1e6:.3f} M fingerprints/s")
 
 

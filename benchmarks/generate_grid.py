@@ -45,7 +45,8 @@ def main() -> None:
     ap.add_argument("--diffuse", type=float, default=None)
     ap.add_argument("--out", help="store directory (default: a temporary one, removed afterwards)")
     args = ap.parse_args()
-    from mmwsim.dataset import Dataset, generate
+    from mmwsim.dataset import Dataset
+    from mmwsim.dataset.generate import generate
     from mmwsim.stages import STAGES
 
     raw = raw_embree_rate()

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 import scenes
-from planning import Corridor, FreeSpace, plan, planner_label, shortest_path
+from planning import AgentSpace, Corridor, plan, planner_label, shortest_path
 
 START, GOAL = (215.0, 193.0), (177.0, 46.0)
 PAPER = {"rrt": (210, 14.81), "rrtstar": (192, 24.61), "irrtstar": (178, 11.7)}
@@ -42,7 +42,7 @@ def estimated_trajectories(
     return np.stack(out)
 
 
-def table(space: FreeSpace, optimum: float, seeds: int, iterations: int) -> list[str]:
+def table(space: AgentSpace, optimum: float, seeds: int, iterations: int) -> list[str]:
     rows = {}
     for name in ("rrt", "rrtstar", "irrtstar"):
         runs = [
@@ -71,7 +71,7 @@ def table(space: FreeSpace, optimum: float, seeds: int, iterations: int) -> list
     return lines
 
 
-def anytime(space: FreeSpace, optimum: float, seconds: float, seeds: int) -> list[str]:
+def anytime(space: AgentSpace, optimum: float, seconds: float, seeds: int) -> list[str]:
     lines = [f"| after {seconds:g} s | median cost (m) | ratio | iterations |", "|---|---|---|---|"]
     for name in ("irrtstar", "bitstar", "aorrtc"):
         runs = [
@@ -95,7 +95,7 @@ def main() -> None:
 
     scene = scenes.load("default")
     t = time.perf_counter()
-    free = FreeSpace(scene)
+    free = AgentSpace(scene)
     t_free = time.perf_counter() - t
     t = time.perf_counter()
     opt = shortest_path(free, START, GOAL)
@@ -103,7 +103,7 @@ def main() -> None:
     trajs = estimated_trajectories(opt.path)
     corridor = Corridor.from_array(trajs, 10.0)
     t = time.perf_counter()
-    guided = FreeSpace(scene, corridor=corridor)
+    guided = AgentSpace(scene, corridor=corridor)
     t_guided = time.perf_counter() - t
     opt_c = shortest_path(guided, START, GOAL)
 

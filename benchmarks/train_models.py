@@ -19,7 +19,7 @@ import torch
 
 from estimation import MODELS, Estimator, TrainConfig, train
 from estimation.adapter import load_sets
-from estimation.evaluation import noisy_bits
+from estimation.noise import noisy_bits
 from estimation.synthetic import toy_sequence_set
 
 

@@ -2,83 +2,60 @@
 
 Tasks: tracking (positions y_1..y_T from fingerprints X_1..X_T) and forecasting (from X_1..X_Tobs,
 positions y_Tobs+1..y_L). Models: the transformer encoder-decoder of the paper (``tn``), LSTM, GRU,
-plain RNN, TCN and Conv1D baselines, a classical nearest-fingerprint + Kalman-smoother baseline
-(``knn-kalman``), and ours: ``tn-match``, a transformer over the grid's most likely points of every
-step, which starts from the classical candidate smoother ``match-cv``.
+plain RNN, TCN and Conv1D baselines (the registry :data:`MODELS`), the classical trackers
+``knn-kalman`` (nearest fingerprint + Kalman smoother) and ``match-cv`` (match candidates +
+hidden-Markov smoother), and ours: ``tn-match``, a transformer over the grid's most likely points of
+every step, which starts from ``match-cv``.
+
+Layout: :mod:`.data` (sequence sets and batches), :mod:`.noise` (fresh noisy bits in torch),
+:mod:`.matching` (fingerprint likelihood on the grid), :mod:`.smoothing` (Kalman and hidden-Markov
+smoothers), :mod:`.models` (networks and their registry), :mod:`.classical`, :mod:`.estimator`,
+:mod:`.training`, :mod:`.evaluation`, :mod:`.report`; :mod:`.names` holds the vocabularies without
+torch. Public names load on first use, so ``import estimation`` alone does not import torch.
 
 Pipeline::
 
     sets, info = load_splits("data.zarr", ("train", "validation"))     # or synthetic.toy_splits
     train(sets["train"], sets["validation"], TrainConfig(model="tn"), "runs/tn")
-    ev = evaluate([NetworkMethod(Estimator.load("runs/tn"), "tn"), KnnKalmanMethod()], test_sets, [6, 9], val)
+    ev = evaluate([method("runs/tn"), method("knn-kalman")], test_sets, [6, 9], sets["validation"])
     write_report(ev, "report", [6, 9])
 """
 
 from __future__ import annotations
 
-from .adapter import GridTable, load_splits, open_dataset, sequence_set
-from .checkpoint import CHECKPOINT_FORMAT, MODEL_FORMAT, load_checkpoint, save_checkpoint
-from .classical import FingerprintMatcher, KnnKalman, MatchSmoother, kalman_forecast, rts_smoother
-from .data import KINDS, Batch, BatchSampler, Normaliser, SequenceSet, fingerprint_bits
-from .errors import EstimationError
-from .estimator import Estimator, TrainConfig
-from .evaluation import Evaluation, KnnKalmanMethod, MatchSmootherMethod, NetworkMethod, evaluate, noisy_bits
-from .metrics import summarise, summarise_by_kind, trajectory_rmse
-from .models import MODELS, MixtureMotion, MotionTable, build_network, count_parameters
-from .report import (
-    accuracy_table,
-    cost_table,
-    log_trajectories,
-    plot_error_vs_length,
-    record_trajectories,
-    write_report,
-)
-from .training import log_training, read_run_info, train
+from mmwsim.lazy import lazy_exports
 
-__all__ = [
-    "Batch",
-    "BatchSampler",
-    "CHECKPOINT_FORMAT",
-    "EstimationError",
-    "Estimator",
-    "Evaluation",
-    "FingerprintMatcher",
-    "GridTable",
-    "KINDS",
-    "KnnKalman",
-    "KnnKalmanMethod",
-    "MatchSmoother",
-    "MatchSmootherMethod",
-    "MixtureMotion",
-    "MotionTable",
-    "MODELS",
-    "MODEL_FORMAT",
-    "NetworkMethod",
-    "Normaliser",
-    "SequenceSet",
-    "TrainConfig",
-    "accuracy_table",
-    "build_network",
-    "cost_table",
-    "count_parameters",
-    "evaluate",
-    "fingerprint_bits",
-    "kalman_forecast",
-    "load_checkpoint",
-    "load_splits",
-    "log_trajectories",
-    "noisy_bits",
-    "open_dataset",
-    "plot_error_vs_length",
-    "read_run_info",
-    "log_training",
-    "record_trajectories",
-    "rts_smoother",
-    "save_checkpoint",
-    "sequence_set",
-    "summarise",
-    "summarise_by_kind",
-    "train",
-    "trajectory_rmse",
-    "write_report",
-]
+_EXPORTS = {
+    ".adapter": ("GridTable", "load_splits", "open_dataset", "sequence_set"),
+    ".checkpoint": ("CHECKPOINT_FORMAT", "MODEL_FORMAT", "load_checkpoint", "save_checkpoint"),
+    ".classical": ("KnnKalman", "MatchSmoother"),
+    ".data": ("Batch", "BatchSampler", "Normaliser", "SequenceSet"),
+    ".errors": ("EstimationError",),
+    ".estimator": ("Estimator", "TrainConfig"),
+    ".evaluation": (
+        "Evaluation",
+        "KnnKalmanMethod",
+        "MatchSmootherMethod",
+        "NetworkMethod",
+        "classical_method",
+        "evaluate",
+        "method",
+    ),
+    ".matching": ("FingerprintMatcher",),
+    ".metrics": ("summarise", "summarise_by_kind", "trajectory_rmse"),
+    ".models": ("MODELS", "ModelSpec", "build_network", "count_parameters", "model_spec"),
+    ".names": ("CLASSICAL_NAMES", "MODEL_NAMES"),
+    ".noise": ("noisy_bits",),
+    ".report": (
+        "accuracy_table",
+        "cost_table",
+        "log_estimates",
+        "plot_error_vs_length",
+        "record_estimates",
+        "write_report",
+    ),
+    ".smoothing": ("MixtureMotion", "MotionTable", "kalman_forecast", "rts_smoother"),
+    ".training": ("log_training", "read_run_info", "train"),
+}
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

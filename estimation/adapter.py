@@ -13,9 +13,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
-from .data import KINDS, SequenceSet
+from mmwsim.constants import BINS, THRESHOLD_DBM
+from mmwsim.fingerprints import GridField
+from mmwsim.trajectories.motion import KINDS
+
+from .data import SequenceSet
 from .errors import EstimationError
 
 __all__ = [
@@ -56,7 +59,7 @@ class GridTable:
         dBm, numpy or zarr array)
     bins : slice
         Fingerprint bin window (default the data set's ``config["bins"]``, else
-        ``mmwsim.trajectories.FEATURE_BINS``, bins 1..81).
+        the contract's window ``mmwsim.constants.BINS``, bins 1..81).
     dtype : torch dtype of the stored PDP (float16 default; about 0.03 dB resolution at -115 dBm,
         far below the noise).
 
@@ -74,9 +77,7 @@ class GridTable:
             if stored is not None:
                 bins = slice(int(stored[0]), int(stored[1]))
             else:
-                from mmwsim.trajectories import FEATURE_BINS
-
-                bins = FEATURE_BINS
+                bins = slice(*BINS)
         grid = dataset.grid
         valid = np.asarray(dataset.valid, dtype=bool).reshape(-1)
         pdp = dataset.pdp
@@ -105,20 +106,11 @@ class GridTable:
         self.pdp = out
         self._row_of_flat = np.full(grid.size, -1, dtype=np.int64)
         self._row_of_flat[self.flat_index] = np.arange(len(self.flat_index))
-        self._tree: cKDTree | None = None
+        self._field = GridField(grid, pdp, valid)
 
     def rows(self, positions: np.ndarray) -> np.ndarray:
         """Row of the nearest valid grid point for each ``(..., 2)`` position (metres) -> ``(...,)`` int64."""
-        from mmwsim.trajectories import nearest_grid_index
-
-        p = np.asarray(positions, dtype=np.float64)
-        rows = self._row_of_flat[nearest_grid_index(self.grid, p)]
-        bad = rows < 0
-        if bad.any():  # nearest grid point invalid (e.g. within a wall's cell): nearest valid one instead
-            if self._tree is None:
-                self._tree = cKDTree(self.xy)
-            rows[bad] = self._tree.query(p[bad])[1]
-        return rows
+        return self._row_of_flat[self._field.valid_index_at(positions)]
 
 
 def sequence_set(
@@ -136,9 +128,7 @@ def sequence_set(
 
 def dataset_threshold(dataset: Any) -> float:
     """Detection threshold of a data set, dBm: its ``config["threshold_dbm"]``, else its
-    ``threshold_dbm`` attribute, else ``mmwsim.fingerprints.THRESHOLD_DBM``."""
-    from mmwsim.fingerprints import THRESHOLD_DBM
-
+    ``threshold_dbm`` attribute, else ``mmwsim.constants.THRESHOLD_DBM``."""
     stored = (getattr(dataset, "config", None) or {}).get("threshold_dbm")
     return float(stored if stored is not None else getattr(dataset, "threshold_dbm", THRESHOLD_DBM))
 
@@ -159,7 +149,7 @@ def load_splits(
         An already opened data set (``.grid``, ``.valid``, ``.pdp``); opened from ``path`` if None.
     threshold : float, optional
         Detection threshold, dBm (default the data set's ``config["threshold_dbm"]``, else its
-        ``threshold_dbm`` attribute, else ``mmwsim.fingerprints.THRESHOLD_DBM``).
+        ``threshold_dbm`` attribute, else ``mmwsim.constants.THRESHOLD_DBM``).
 
     Returns
     -------
@@ -167,7 +157,6 @@ def load_splits(
     info : dict describing the data (path, content hash, grid, splits and their sizes)
     """
     from mmwsim.errors import MmwsimError
-    from mmwsim.trajectories import KINDS as TRAJ_KINDS
     from mmwsim.trajectories import read_trajectories
 
     ds = open_dataset(path) if dataset is None else dataset
@@ -188,7 +177,7 @@ def load_splits(
             keep = ~t.holdout
         elif sub:
             raise EstimationError(f"unknown split {name!r} (use SPLIT, SPLIT/holdout or SPLIT/seen)")
-        names = np.asarray(TRAJ_KINDS)[t.kind[keep]]
+        names = np.asarray(KINDS)[t.kind[keep]]
         sets[name] = sequence_set(table, t.positions[keep], names, threshold)
     info = {
         "dataset": str(Path(path).resolve()),

@@ -15,11 +15,9 @@ import numpy as np
 import torch
 
 from .errors import EstimationError
+from .noise import fingerprint_bits
 
-__all__ = ["KINDS", "SequenceSet", "Normaliser", "fingerprint_bits", "Batch", "BatchSampler"]
-
-# Kind codes stored in SequenceSet.kind (the order of mmwsim.trajectories.KINDS; the adapter maps by name).
-KINDS = ("static", "pedestrian", "hybrid", "vehicle")
+__all__ = ["SequenceSet", "Normaliser", "Batch", "BatchSampler"]
 
 
 @dataclass
@@ -72,7 +70,7 @@ class SequenceSet:
     positions : (n, L, 2) float32 ndarray, metres
         True (continuous) positions.
     kind : (n,) int8 ndarray
-        Index into :data:`KINDS`.
+        Index into :data:`mmwsim.trajectories.KINDS`.
     threshold : float, dBm
         Detection threshold of the fingerprint bits.
     extent : (2, 2) float ndarray, metres
@@ -149,36 +147,6 @@ class SequenceSet:
 
     def normaliser(self) -> Normaliser:
         return Normaliser.from_extent(self.extent[0], self.extent[1])
-
-
-def fingerprint_bits(
-    pdp: torch.Tensor, sigma: float, threshold: float, generator: torch.Generator
-) -> torch.Tensor:
-    """Fresh noisy fingerprint bits.
-
-    Parameters
-    ----------
-    pdp : (..., M, N_s) tensor, dBm (``-inf`` = no signal)
-    sigma : float, dB
-        Standard deviation of the Gaussian noise added in dB (log-normal in power).
-    threshold : float, dBm
-    generator : torch.Generator
-
-    Returns
-    -------
-    (..., M, N_s) float32 tensor of 0/1
-    """
-    pdp = pdp.float()
-    if sigma <= 0:
-        return (pdp >= threshold).float()
-    # Only bins with some signal can fire; they are a few percent of a real fingerprint, so noise is
-    # drawn for those alone (same distribution, far fewer draws).
-    finite = torch.isfinite(pdp)
-    values = pdp[finite]
-    bits = torch.zeros(pdp.shape, dtype=torch.float32)
-    noise = torch.randn(values.shape, generator=generator, dtype=torch.float32)
-    bits[finite] = (values + sigma * noise >= threshold).float()
-    return bits
 
 
 @dataclass

@@ -7,21 +7,22 @@ import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from torch import nn
 
+from mmwsim.constants import SIGMA_DB
+
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
-from .classical import FingerprintMatcher
 from .data import Normaliser, SequenceSet
 from .errors import EstimationError
-from .models import CANDIDATE_MODELS, MODELS, build_network, count_parameters
-from .models.candidates import candidate_features
+from .matching import FingerprintMatcher
+from .models import ModelSpec, build_network, count_parameters, model_spec
+from .names import LOSSES, TASKS, Loss, ModelName, Task
+from .smoothing.hmm import candidate_features
 
-__all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "LOSSES"]
-
-LOSSES = ("mse", "rmse")
+__all__ = ["TrainConfig", "Estimator", "MODEL_FILE"]
 
 MODEL_FILE = "model.pt"
 
@@ -47,7 +48,7 @@ class TrainConfig:
 
     Attributes
     ----------
-    model : one of ``tn tn-match lstm gru rnn tcn conv1d``
+    model : one of :data:`estimation.names.MODEL_NAMES` (``tn tn-match lstm gru rnn tcn conv1d``)
     task : ``tracking`` or ``forecasting``
     sigma : float, dB; noise of the training fingerprints
     epochs, batch_size, lr, dropout : the paper's optimisation settings
@@ -59,14 +60,14 @@ class TrainConfig:
     seed : int
     epoch_size : trajectories drawn (afresh, with fresh noise) per epoch; 0 = all of them
     loss : ``mse`` (the paper's, over all coordinates) or ``rmse`` (mean per-trajectory RMSE, the
-        evaluation metric, which weighs a lost track less than squared errors do); empty picks
-        ``rmse`` for ``tn-match`` and ``mse`` for the others
+        evaluation metric, which weighs a lost track less than squared errors do); empty picks the
+        model's own (:attr:`ModelSpec.loss`: ``rmse`` for ``tn-match``, ``mse`` for the others)
     options : extra constructor arguments of the network (e.g. ``{"d": 64}``)
     """
 
-    model: str
-    task: str = "tracking"
-    sigma: float = 6.0
+    model: ModelName
+    task: Task = "tracking"
+    sigma: float = SIGMA_DB
     epochs: int = 100
     batch_size: int = 64
     lr: float = 1e-3
@@ -81,7 +82,7 @@ class TrainConfig:
     horizon: int = 2
     seed: int = 0
     epoch_size: int = 0
-    loss: str = ""
+    loss: Loss | Literal[""] = ""
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -98,17 +99,16 @@ class TrainConfig:
                 raise EstimationError(f"{name} must not be negative (got {getattr(self, name)})")
         if not 0 < self.lr_factor < 1:
             raise EstimationError(f"lr_factor must be in (0, 1) (got {self.lr_factor})")
-        if self.model not in MODELS:
-            raise EstimationError(f"unknown model {self.model!r} (choose from {', '.join(MODELS)})")
-        if self.task not in ("tracking", "forecasting"):
-            raise EstimationError(f"unknown task {self.task!r} (tracking, forecasting)")
+        spec = model_spec(self.model)
+        if self.task not in TASKS:
+            raise EstimationError(f"unknown task {self.task!r} ({', '.join(TASKS)})")
         for name in ("epochs", "batch_size", "patience", "min_length", "t_obs", "horizon"):
             if getattr(self, name) < 1:
                 raise EstimationError(f"{name} must be at least 1 (got {getattr(self, name)})")
-        if self.model in CANDIDATE_MODELS and self.task != "tracking":
-            raise EstimationError(f"{self.model} estimates tracks only (task tracking)")
+        if self.task not in spec.tasks:
+            raise EstimationError(f"{self.model} is trained for {', '.join(spec.tasks)} only")
         if not self.loss:
-            object.__setattr__(self, "loss", "rmse" if self.model in CANDIDATE_MODELS else "mse")
+            object.__setattr__(self, "loss", spec.loss)
         if self.loss not in LOSSES:
             raise EstimationError(f"unknown loss {self.loss!r} (choose from {', '.join(LOSSES)})")
         if not 0 <= self.min_delta < 1:
@@ -166,9 +166,14 @@ class Estimator(nn.Module):
         return count_parameters(self.net)
 
     @property
+    def spec(self) -> ModelSpec:
+        """The registry entry of the network."""
+        return model_spec(self.config.model)
+
+    @property
     def uses_grid(self) -> bool:
         """Whether the network reads the data set's grid (see :meth:`attach`)."""
-        return self.config.model in CANDIDATE_MODELS
+        return self.spec.reads_grid
 
     def attach(self, data: Any, sigma: float | None = None) -> Estimator:
         """Give a grid-reading network (``tn-match``) the grid of ``data`` (a :class:`SequenceSet`
@@ -212,7 +217,7 @@ class Estimator(nn.Module):
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
         grid-reading network its smoothed candidates ``(xy (B, T, k, 2) metres, posteriors
-        (B, T, k, P))`` (see :func:`~estimation.models.candidates.candidate_features`) and the
+        (B, T, k, P))`` (see :func:`~estimation.smoothing.hmm.candidate_features`) and the
         classical estimate ``(B, T, 2)`` metres it starts from (``net.smoothed``), from the bits or
         from their :meth:`search` result ``found``."""
         if not self.uses_grid:

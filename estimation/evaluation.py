@@ -8,21 +8,34 @@ trajectories are drawn once from a seeded generator, and every method and sequen
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
 from .classical import KnnKalman, MatchSmoother
-from .data import SequenceSet, fingerprint_bits
+from .data import SequenceSet
 from .errors import EstimationError
 from .estimator import Estimator
 from .metrics import summarise_by_kind, trajectory_rmse
+from .names import CLASSICAL_NAMES, Task
+from .noise import noisy_bits
+from .training import read_run_info
 
-__all__ = ["NetworkMethod", "KnnKalmanMethod", "MatchSmootherMethod", "Evaluation", "evaluate", "noisy_bits"]
+__all__ = [
+    "Evaluation",
+    "KnnKalmanMethod",
+    "MatchSmootherMethod",
+    "NetworkMethod",
+    "classical_method",
+    "evaluate",
+    "method",
+]
 
 _BATCH = 512
 
@@ -48,23 +61,51 @@ def _per_prefix(
     return out
 
 
-def noisy_bits(data: SequenceSet, sigma: float, generator: torch.Generator, chunk: int = 256) -> torch.Tensor:
-    """Fresh fingerprints of every step of every trajectory: ``(n, L, M, N_s)`` bool (1 byte each)."""
-    out = torch.empty((data.n, data.length, data.n_beams, data.n_bins), dtype=torch.bool)
-    for k in range(0, data.n, chunk):
-        pdp = data.grid_pdp[torch.from_numpy(data.index[k : k + chunk])]
-        out[k : k + chunk] = fingerprint_bits(pdp, sigma, data.threshold, generator).bool()
-    return out
-
-
 class NetworkMethod:
-    """A trained run as an evaluation method."""
+    """A trained run as an evaluation method.
 
-    def __init__(self, estimator: Estimator, name: str, train_seconds: float = float("nan"), epochs: int = 0):
-        self.est, self.name = estimator, name
+    Parameters
+    ----------
+    estimator : Estimator
+    name : str
+        Label in tables and recordings.
+    train_seconds : float
+    epochs : int
+    dataset : str, optional
+        The data set the run was trained on.
+    """
+
+    fitted: dict[float, dict[str, Any]] = {}  # nothing is fitted at evaluation
+
+    def __init__(
+        self,
+        estimator: Estimator,
+        name: str,
+        train_seconds: float = float("nan"),
+        epochs: int = 0,
+        dataset: str | None = None,
+    ):
+        self.est, self.name, self.dataset = estimator, name, dataset
         cfg = estimator.config
         self.task, self.t_obs, self.horizon = cfg.task, cfg.t_obs, cfg.horizon
         self.n_parameters, self.train_seconds, self.epochs = estimator.n_parameters, train_seconds, epochs
+
+    @classmethod
+    def from_run(cls, run: str | os.PathLike) -> NetworkMethod:
+        """The best weights of a run folder, labelled by the folder's name."""
+        info = read_run_info(run)
+        summary = info.get("summary", {})
+        seconds, epochs = summary.get("train_seconds", float("nan")), summary.get("epochs", 0)
+        trained_on = info.get("data", {}).get("dataset")
+        if (
+            isinstance(seconds, bool)
+            or not isinstance(seconds, (int, float))
+            or isinstance(epochs, bool)
+            or not isinstance(epochs, int)
+            or not isinstance(trained_on, (str, type(None)))
+        ):
+            raise EstimationError(f"{run}: run.json has a malformed summary or data description")
+        return cls(Estimator.load(run), Path(run).resolve().name, float(seconds), epochs, trained_on)
 
     def for_sigma(self, sigma: float, validation: SequenceSet | None) -> NetworkMethod:
         if self.est.uses_grid:
@@ -146,6 +187,7 @@ class MatchSmootherMethod:
     n_parameters = 0
     train_seconds = 0.0
     epochs = 0
+    fitted: dict[float, dict[str, Any]] = {}  # nothing to fit
 
     def __init__(self) -> None:
         self.model: MatchSmoother | None = None
@@ -165,6 +207,33 @@ class MatchSmootherMethod:
             lambda b: self.model.search(b.float()),
             lambda f, L: self.model.smooth(f[0][:, :L], f[1][:, :L]),
         )
+
+
+def classical_method(
+    name: str, task: Task = "tracking", t_obs: int = 5, horizon: int = 2, fit_length: int = 7, seed: int = 0
+) -> KnnKalmanMethod | MatchSmootherMethod:
+    """The classical tracker ``name`` (one of :data:`estimation.names.CLASSICAL_NAMES`) as a method.
+
+    ``task``, ``t_obs`` and ``horizon`` set what ``knn-kalman`` estimates, ``fit_length`` the
+    validation crops its parameters are fitted on; ``match-cv`` tracks and fits nothing.
+    """
+    if name == "knn-kalman":
+        return KnnKalmanMethod(task, t_obs, horizon, fit_length, seed=seed)
+    if name == "match-cv":
+        return MatchSmootherMethod()
+    raise EstimationError(f"unknown classical tracker {name!r} (choose from {', '.join(CLASSICAL_NAMES)})")
+
+
+def method(
+    run: str | os.PathLike, **classical_options: Any
+) -> NetworkMethod | KnnKalmanMethod | MatchSmootherMethod:
+    """An evaluation method by what names it: a classical tracker (see :func:`classical_method`,
+    which ``classical_options`` go to) or a training run folder."""
+    if str(run) in CLASSICAL_NAMES:
+        return classical_method(str(run), **classical_options)
+    if not Path(run).is_dir():
+        raise EstimationError(f"{run}: not a run folder (nor {' or '.join(CLASSICAL_NAMES)})")
+    return NetworkMethod.from_run(run)
 
 
 @dataclass
@@ -245,59 +314,33 @@ def evaluate(
         if data.n == 0:
             log(f"split {split}: no trajectories, skipped")
             continue
-        if max_trajectories and data.n > max_trajectories:
-            rows = np.sort(np.random.default_rng(seed).permutation(data.n)[:max_trajectories])
-            data = data.subset(rows)
-        L = data.length
-        tl = min(table_length, L)
-        lens = sorted({min(v, L) for v in (lengths or range(2, L + 1))} | {tl})
-        lens = [v for v in lens if v >= 1]
+        data = _subsample(data, max_trajectories, seed)
+        tl = min(table_length, data.length)
+        lens = _tracking_lengths(data.length, lengths, tl)
         ex_rows = np.concatenate([np.flatnonzero(data.kind == k)[:n_examples] for k in np.unique(data.kind)])
         ev.examples[split] = {"true": data.positions[ex_rows], "kind": data.kind[ex_rows]}
         for ni, sigma in enumerate(noises):
-            gen = torch.Generator().manual_seed(seed * 1_000_003 + si * 1009 + ni)
-            bits = noisy_bits(data, sigma, gen)
+            # The same noisy bits for every method: differences between methods are not noise.
+            bits = noisy_bits(data, sigma, torch.Generator().manual_seed(seed * 1_000_003 + si * 1009 + ni))
             for m in methods:
                 t0 = time.perf_counter()
                 pm = m.for_sigma(sigma, validation)
-                if m.name == "knn-kalman":
-                    ev.fitted.setdefault(m.name, {})[str(sigma)] = m.fitted.get(sigma)
+                fitted = getattr(m, "fitted", {})  # what a method fitted per noise level, if anything
+                if sigma in fitted:
+                    ev.fitted.setdefault(m.name, {})[str(sigma)] = fitted[sigma]
                 if pm.task == "tracking":
-                    preds = pm.predict_lengths(bits, lens)
-                    for T, (pred, secs) in preds.items():
-                        _add(ev, m.name, split, sigma, "tracking", T, pred, data.positions[:, :T], data.kind)
-                        if T == tl and ni == 0 and si == 0:
-                            ev.cost[m.name] = {
-                                "parameters": m.n_parameters,
-                                "train_seconds": m.train_seconds,
-                                "epochs": m.epochs,
-                                "predict_seconds": secs * 1000 / data.n,
-                            }
-                    if ni == 0:
-                        ev.examples[split][m.name] = preds[max(lens)][0][ex_rows]
-                else:
-                    need = pm.t_obs + pm.horizon
-                    if need > L:
-                        raise EstimationError(f"{m.name}: forecasting needs {need} steps, {split} has {L}")
-                    pred, secs = pm.predict_lengths(bits, [pm.t_obs])[pm.t_obs]
-                    _add(
-                        ev,
-                        m.name,
-                        split,
-                        sigma,
-                        "forecasting",
-                        need,
-                        pred,
-                        data.positions[:, pm.t_obs : need],
-                        data.kind,
+                    secs = _evaluate_tracking(
+                        ev, pm, split, data, sigma, bits, lens, tl, ex_rows if ni == 0 else None
                     )
-                    if ni == 0 and si == 0:
-                        ev.cost[m.name] = {
-                            "parameters": m.n_parameters,
-                            "train_seconds": m.train_seconds,
-                            "epochs": m.epochs,
-                            "predict_seconds": secs * 1000 / data.n,
-                        }
+                else:
+                    secs = _evaluate_forecasting(ev, pm, split, data, sigma, bits)
+                if ni == 0 and si == 0:
+                    ev.cost[m.name] = {
+                        "parameters": m.n_parameters,
+                        "train_seconds": m.train_seconds,
+                        "epochs": m.epochs,
+                        "predict_seconds": secs * 1000 / data.n,
+                    }
                 r = ev.select(method=m.name, split=split, sigma=sigma, kind="all")
                 log(
                     f"{split} {sigma:g} dB {m.name}: mean RMSE "
@@ -305,6 +348,50 @@ def evaluate(
                     + f" m ({time.perf_counter() - t0:.1f} s)"
                 )
     return ev
+
+
+def _subsample(data: SequenceSet, max_trajectories: int | None, seed: int) -> SequenceSet:
+    """At most ``max_trajectories`` of the set, a seeded random subset in their stored order."""
+    if not max_trajectories or data.n <= max_trajectories:
+        return data
+    return data.subset(np.sort(np.random.default_rng(seed).permutation(data.n)[:max_trajectories]))
+
+
+def _tracking_lengths(L: int, lengths: list[int] | None, table_length: int) -> list[int]:
+    """The tracking sequence lengths evaluated on ``L``-step trajectories (the table's included)."""
+    lens = sorted({min(v, L) for v in (lengths or range(2, L + 1))} | {table_length})
+    return [v for v in lens if v >= 1]
+
+
+def _evaluate_tracking(ev, method, split, data, sigma, bits, lens, table_length, examples) -> float:
+    """Rows of every tracking length; the examples' tracks when ``examples`` rows are given.
+    Returns the prediction seconds of the table length."""
+    preds = method.predict_lengths(bits, lens)
+    for T, (pred, _) in preds.items():
+        _add(ev, method.name, split, sigma, "tracking", T, pred, data.positions[:, :T], data.kind)
+    if examples is not None:
+        ev.examples[split][method.name] = preds[max(lens)][0][examples]
+    return preds[table_length][1]
+
+
+def _evaluate_forecasting(ev, method, split, data, sigma, bits) -> float:
+    """Rows of the forecast of ``method.horizon`` steps after ``method.t_obs``; returns its seconds."""
+    need = method.t_obs + method.horizon
+    if need > data.length:
+        raise EstimationError(f"{method.name}: forecasting needs {need} steps, {split} has {data.length}")
+    pred, secs = method.predict_lengths(bits, [method.t_obs])[method.t_obs]
+    _add(
+        ev,
+        method.name,
+        split,
+        sigma,
+        "forecasting",
+        need,
+        pred,
+        data.positions[:, method.t_obs : need],
+        data.kind,
+    )
+    return secs
 
 
 def _add(ev: Evaluation, method, split, sigma, task, length, pred, true, kind) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .data import KINDS
+from mmwsim.trajectories.motion import KINDS
 
 __all__ = ["trajectory_rmse", "summarise", "summarise_by_kind"]
 
@@ -50,7 +50,7 @@ def summarise_by_kind(rmse: np.ndarray, kind: np.ndarray) -> dict[str, dict[str,
     Parameters
     ----------
     rmse : (n,) float, metres
-    kind : (n,) int, index into :data:`~estimation.data.KINDS`
+    kind : (n,) int, index into :data:`mmwsim.trajectories.KINDS`
     """
     out = {"all": summarise(rmse)}
     for code in np.unique(kind):

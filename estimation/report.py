@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from .data import KINDS
+from mmwsim.trajectories.motion import KINDS
+
 from .errors import EstimationError
 from .evaluation import Evaluation
 
@@ -21,8 +22,8 @@ __all__ = [
     "cost_table",
     "plot_error_vs_length",
     "write_report",
-    "record_trajectories",
-    "log_trajectories",
+    "record_estimates",
+    "log_estimates",
 ]
 
 _KIND_ORDER = ("vehicle", "pedestrian", "hybrid", "static", "all")
@@ -189,24 +190,24 @@ def _write_report(ev: Evaluation, out: Path, noises: list[float]) -> list[Path]:
     return written
 
 
-def record_trajectories(ev: Evaluation, path: str | os.PathLike, footprints=None) -> None:
+def record_estimates(ev: Evaluation, path: str | os.PathLike, footprints=None) -> None:
     """Rerun recording of predicted against true trajectories: ``trajectories/<split>-<i>/{true,<model>}``
     as 2D line strips (static) and the current position on the ``step`` timeline."""
     from mmwsim.recording import Recording
 
     with Recording(path, "evaluation", families=("trajectories",)) as rec:
-        log_trajectories(rec, ev, footprints)
+        log_estimates(rec, ev, footprints)
 
 
-def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
-    """Log the entities of :func:`record_trajectories` into an open ``mmwsim.recording.Recording``.
+def log_estimates(rec: Any, ev: Evaluation, footprints=None) -> None:
+    """Log the entities of :func:`record_estimates` into an open ``mmwsim.recording.Recording``.
 
     True tracks are near-white, each model has a colour of its own (the Trajectories legend says
     which); labels show on hover, as there are many tracks.
     """
     import rerun as rr
 
-    from mmwsim.recording import Entity, Timeline, log_legend, log_map_context, north_up
+    from mmwsim.recording import Entity, log_legend, log_map_context, log_track, north_up
 
     north_up(rec, Entity.TRAJECTORIES)
     if footprints:
@@ -232,28 +233,15 @@ def log_trajectories(rec: Any, ev: Evaluation, footprints=None) -> None:
             ident = f"{_slug(split)}-{i}"
             label = KINDS[int(ex["kind"][i])]
             for src, arr in sources.items():
-                rec.log(
+                log_track(
+                    rec,
                     Entity.trajectory(ident, src),
-                    rr.LineStrips2D(
-                        [arr[i]],
-                        colors=[colours[src]],
-                        radii=rr.Radius.ui_points(2.5 if src == "true" else 1.8),
-                        labels=[f"{split} {i}: {label} {src}"],
-                        show_labels=False,
-                    ),
-                    static=True,
+                    arr[i],
+                    colours[src],
+                    f"{split} {i}: {label} {src}",
+                    width=2.5 if src == "true" else 1.8,
+                    head=5.0,
                 )
-            for t in range(true.shape[1]):
-                rec.set_time(Timeline.STEP, t)
-                for src, arr in sources.items():
-                    rec.log(
-                        Entity.trajectory(ident, src) + "/now",
-                        rr.Points2D(
-                            [arr[i][min(t, len(arr[i]) - 1)]],
-                            colors=[colours[src]],
-                            radii=rr.Radius.ui_points(5.0),
-                        ),
-                    )
     log_legend(
         rec,
         "trajectories",

@@ -9,7 +9,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .data import KINDS, SequenceSet
+from mmwsim.constants import THRESHOLD_DBM
+from mmwsim.trajectories.motion import KINDS
+
+from .data import SequenceSet
 
 __all__ = ["toy_grid", "random_walks", "toy_sequence_set"]
 
@@ -20,7 +23,7 @@ def toy_grid(
     spacing: float = 1.0,
     n_beams: int = 8,
     n_bins: int = 12,
-    threshold: float = -115.0,
+    threshold: float = THRESHOLD_DBM,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A rectangular grid and a smooth per-beam PDP on it.
@@ -57,7 +60,7 @@ def random_walks(
     Returns
     -------
     positions : (n, length, 2) float32, metres (1 s per step)
-    kind : (n,) int8, index into :data:`~estimation.data.KINDS`: pedestrian (speed ``speeds[0]``)
+    kind : (n,) int8, index into :data:`mmwsim.trajectories.KINDS`: pedestrian (speed ``speeds[0]``)
         or vehicle (``speeds[1]``)
     """
     rng = np.random.default_rng(seed)
@@ -105,7 +108,7 @@ def toy_sequence_set(
     ix = np.rint(pos[..., 0] - lo[0]).astype(np.int64)
     iy = np.rint(pos[..., 1] - lo[1]).astype(np.int64)
     index = ix + nx * iy
-    return SequenceSet(torch.from_numpy(pdp), xy, index, pos, kind, -115.0, np.stack([lo, hi]))
+    return SequenceSet(torch.from_numpy(pdp), xy, index, pos, kind, THRESHOLD_DBM, np.stack([lo, hi]))
 
 
 TOY_HOLDOUT = (24.0, 24.0, 31.0, 31.0)

@@ -20,7 +20,7 @@ import queue
 import threading
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -236,19 +236,16 @@ def train(
         raise EstimationError(f"{run}: a folder that is not a training run; choose another --out")
     if time_limit is not None and not (math.isfinite(time_limit) and time_limit >= 0):
         raise EstimationError(f"time limit must be a finite number of seconds >= 0, got {time_limit}")
-    if train_set.n == 0 or val_set.n == 0:
-        raise EstimationError("training and validation sets must not be empty")
-    if (train_set.n_beams, train_set.n_bins) != (val_set.n_beams, val_set.n_bins):
-        raise EstimationError("training and validation fingerprints differ in shape")
+    _check_sets(train_set, val_set)
     # One trainer per run folder; a run that fails before its first checkpoint leaves nothing,
     # a later one stays resumable.
     with locked_output(run, "run folder", create=True, keep=(run / CHECKPOINT_FILE).exists):
         if (run / CHECKPOINT_FILE).exists() and not resume:
             raise EstimationError(f"{run}: already holds a checkpoint; pass --resume or choose another --out")
-        return _train(train_set, val_set, cfg, run, resume, data_info, progress, record, log, time_limit)
+        return _run(train_set, val_set, cfg, run, resume, data_info, progress, record, log, time_limit)
 
 
-def _train(
+def _run(
     train_set: SequenceSet,
     val_set: SequenceSet,
     cfg: TrainConfig,
@@ -260,59 +257,20 @@ def _train(
     log,
     time_limit: float | None,
 ) -> dict[str, Any]:
-    ckpt_path = run / CHECKPOINT_FILE
-
+    """The body of :func:`train`, with the run folder checked and locked."""
     lengths = _lengths(cfg, train_set)
     sampler = BatchSampler(
         train_set, cfg.task, cfg.sigma, cfg.batch_size, lengths, cfg.seed, epoch_size=cfg.epoch_size
     )
     val_lengths = (lengths[1], lengths[1]) if cfg.task == "tracking" else lengths
     val_sampler = BatchSampler(val_set, cfg.task, cfg.sigma, 256, val_lengths, cfg.seed + 1, shuffle=False)
-
-    torch.manual_seed(cfg.seed)
-    est = Estimator(cfg, train_set.n_beams, train_set.n_bins, train_set.normaliser()).attach(train_set)
-    same_grid = val_set.grid_pdp is train_set.grid_pdp or (
-        val_set.grid_pdp.shape == train_set.grid_pdp.shape
-        and torch.equal(val_set.grid_pdp, train_set.grid_pdp)
-    )
-    if est.uses_grid and not same_grid:
-        raise EstimationError(f"{cfg.model} needs training and validation sets on one grid")
-    if est.uses_grid and train_set.length >= 3:
-        # The smoothers' motion statistics, measured where their candidates live: on grid points,
-        # and on the sub-cell lattice.
-        est.net.motion.fit(train_set.grid_xy[train_set.index])
-        est.net.fit_fine(train_set.positions, train_set.grid_xy)
+    est = _build_estimator(cfg, train_set, val_set)
     opt = torch.optim.Adam(est.net.parameters(), lr=cfg.lr, foreach=True)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=cfg.lr_factor, patience=cfg.lr_patience)
-    history: dict[str, list[float]] = {k: [] for k in _HISTORY_KEYS}
-    best_val, ref_val, bad, epoch, done = math.inf, math.inf, 0, 0, False
-
-    if resume and ckpt_path.exists():
-        state = load_checkpoint(
-            ckpt_path,
-            CHECKPOINT_FORMAT,
-            ("config", "epoch", "model", "optimizer", "scheduler", "history", "best_val"),
-        )
-        try:
-            saved = TrainConfig.from_json(state["config"])
-        except (ValueError, TypeError) as e:
-            raise EstimationError(f"{ckpt_path}: unreadable config ({e})") from None
-        if json.loads(saved.to_json()) | {"epochs": 0} != json.loads(cfg.to_json()) | {"epochs": 0}:
-            raise EstimationError(f"{ckpt_path}: was written with other settings ({saved.to_json()})")
-        try:
-            est.net.load_state_dict(state["model"])
-            opt.load_state_dict(state["optimizer"])
-            sched.load_state_dict(state["scheduler"])
-        except (RuntimeError, ValueError, KeyError, TypeError) as e:
-            raise EstimationError(
-                f"{ckpt_path}: does not fit this model ({str(e).splitlines()[0][:160]})"
-            ) from None
-        history = {k: list(state["history"][k]) for k in _HISTORY_KEYS}
-        epoch, best_val = int(state["epoch"]), float(state["best_val"])
-        ref_val = float(state.get("ref_val", best_val))
-        bad, done = int(state.get("bad_epochs", 0)), bool(state.get("done", False))
-        log(f"resuming {cfg.model} after epoch {epoch}")
-
+    state = _State()
+    if resume and (run / CHECKPOINT_FILE).exists():
+        state = _resume(run / CHECKPOINT_FILE, cfg, est, opt, sched)
+        log(f"resuming {cfg.model} after epoch {state.epoch}")
     info = {
         "config": json.loads(cfg.to_json()),
         "data": data_info or {},
@@ -324,90 +282,191 @@ def _train(
         "n_val": val_set.n,
     }
     _write_json(run / RUN_FILE, info)
-
-    # Validation noise is that of epoch 0 every time, so epochs are comparable. A grid-reading
-    # network's candidate search is the costly part and depends on the noise alone: done once.
-    val_batches = None
-    if est.uses_grid:
-        val_batches = [replace(b, bits=b.bits[:0], inputs=est.inputs(b.bits)) for b in val_sampler.epoch(0)]
-
+    val_batches = _validation_batches(est, val_sampler)
     started = time.perf_counter()
-    while not done and epoch < cfg.epochs:
+    while not state.done and state.epoch < cfg.epochs:
         if time_limit is not None and time.perf_counter() - started >= time_limit:
-            log(f"{cfg.model}: time limit reached after epoch {epoch}; continue with --resume")
+            log(f"{cfg.model}: time limit reached after epoch {state.epoch}; continue with --resume")
             break
         t0 = time.perf_counter()
-        torch.manual_seed(cfg.seed * 7919 + epoch + 1)  # dropout masks of this epoch
-        est.train()
-        total, count = 0.0, 0
-        # The worker thread also prepares what the network reads (candidate search for tn-match).
-        batches = _prefetch(replace(b, inputs=est.inputs(b.bits)) for b in sampler.epoch(epoch))
-        if progress:
-            from tqdm import tqdm
-
-            batches = tqdm(
-                batches, total=len(sampler), desc=f"{cfg.model} epoch {epoch + 1}", leave=False, unit="batch"
-            )
-        for b in batches:
-            out = est(b.inputs, b.y)
-            total_loss, terms = est.loss(out, b.y)
-            loss = total_loss / terms
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            total += float(loss.detach()) * len(b.rows)
-            count += len(b.rows)
-        val_loss, val_rmse = _validate(est, val_batches if val_batches is not None else val_sampler.epoch(0))
+        train_loss = _train_epoch(est, opt, sampler, cfg, state.epoch, progress)
+        val_loss, val_rmse = _validate(est, val_batches)
         lr = opt.param_groups[0]["lr"]
         sched.step(val_loss)
-        epoch += 1
-        for k, v in zip(
-            _HISTORY_KEYS, (total / count, val_loss, val_rmse, lr, time.perf_counter() - t0), strict=True
-        ):
-            history[k].append(float(v))
-        if val_loss < best_val:
-            best_val = val_loss
-            est.save(run / MODEL_FILE, {"epoch": epoch, "val_loss": val_loss, "val_rmse": val_rmse})
-        # Early stopping waits for a real improvement; the best model is kept whatever its margin.
-        if val_loss < ref_val * (1 - cfg.min_delta):
-            ref_val, bad = val_loss, 0
-        else:
-            bad += 1
-        done = bad >= cfg.patience
-        fault("train.epoch", ckpt_path)
-        save_checkpoint(
-            ckpt_path,
-            {
-                "format": CHECKPOINT_FORMAT,
-                "config": cfg.to_json(),
-                "epoch": epoch,
-                "model": est.net.state_dict(),
-                "optimizer": opt.state_dict(),
-                "scheduler": sched.state_dict(),
-                "history": history,
-                "best_val": best_val,
-                "ref_val": ref_val,
-                "bad_epochs": bad,
-                "done": done,
-            },
+        _end_epoch(
+            run, cfg, est, opt, sched, state, (train_loss, val_loss, val_rmse, lr, time.perf_counter() - t0)
         )
-        fault("train.checkpointed", ckpt_path)
         log(
-            f"{cfg.model} epoch {epoch}: train {total / count:.5f} val {val_loss:.5f} "
-            f"rmse {val_rmse:.2f} m lr {lr:.1e} ({history['seconds'][-1]:.1f} s)"
+            f"{cfg.model} epoch {state.epoch}: train {train_loss:.5f} val {val_loss:.5f} "
+            f"rmse {val_rmse:.2f} m lr {lr:.1e} ({state.history['seconds'][-1]:.1f} s)"
         )
+    if record and state.history["train_loss"]:
+        _record(run, cfg, state.history)
+    summary = _summary(state, est)
+    _write_json(run / RUN_FILE, info | {"summary": summary})
+    return summary
 
-    if record and history["train_loss"]:
-        _record(run, cfg, history)
+
+@dataclass
+class _State:
+    """Where a training run stands after ``epoch`` epochs (what a checkpoint restores)."""
+
+    epoch: int = 0
+    best_val: float = math.inf  # best validation loss: the weights in model.pt
+    ref_val: float = math.inf  # the last validation loss that counted as an improvement
+    bad: int = 0  # epochs since then
+    done: bool = False  # stopped early
+    history: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in _HISTORY_KEYS})
+
+
+def _check_sets(train_set: SequenceSet, val_set: SequenceSet) -> None:
+    if train_set.n == 0 or val_set.n == 0:
+        raise EstimationError("training and validation sets must not be empty")
+    if (train_set.n_beams, train_set.n_bins) != (val_set.n_beams, val_set.n_bins):
+        raise EstimationError("training and validation fingerprints differ in shape")
+
+
+def _build_estimator(cfg: TrainConfig, train_set: SequenceSet, val_set: SequenceSet) -> Estimator:
+    """The untrained estimator, seeded; a grid-reading network gets the grid and its motion tables."""
+    torch.manual_seed(cfg.seed)
+    est = Estimator(cfg, train_set.n_beams, train_set.n_bins, train_set.normaliser()).attach(train_set)
+    if not est.uses_grid:
+        return est
+    same_grid = val_set.grid_pdp is train_set.grid_pdp or (
+        val_set.grid_pdp.shape == train_set.grid_pdp.shape
+        and torch.equal(val_set.grid_pdp, train_set.grid_pdp)
+    )
+    if not same_grid:
+        raise EstimationError(f"{cfg.model} needs training and validation sets on one grid")
+    if train_set.length >= 3:
+        # The smoothers' motion statistics, measured where their candidates live: on grid points,
+        # and on the sub-cell lattice.
+        est.net.motion.fit(train_set.grid_xy[train_set.index])
+        est.net.fit_fine(train_set.positions, train_set.grid_xy)
+    return est
+
+
+def _resume(path: Path, cfg: TrainConfig, est: Estimator, opt, sched) -> _State:
+    """Load the checkpoint at ``path`` into the network, optimiser and scheduler; its state."""
+    state = load_checkpoint(
+        path, CHECKPOINT_FORMAT, ("config", "epoch", "model", "optimizer", "scheduler", "history", "best_val")
+    )
+    try:
+        saved = TrainConfig.from_json(state["config"])
+    except (ValueError, TypeError) as e:
+        raise EstimationError(f"{path}: unreadable config ({e})") from None
+    if json.loads(saved.to_json()) | {"epochs": 0} != json.loads(cfg.to_json()) | {"epochs": 0}:
+        raise EstimationError(f"{path}: was written with other settings ({saved.to_json()})")
+    try:
+        est.net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+    except (RuntimeError, ValueError, KeyError, TypeError) as e:
+        raise EstimationError(f"{path}: does not fit this model ({str(e).splitlines()[0][:160]})") from None
+    best_val = float(state["best_val"])
+    return _State(
+        epoch=int(state["epoch"]),
+        best_val=best_val,
+        ref_val=float(state.get("ref_val", best_val)),
+        bad=int(state.get("bad_epochs", 0)),
+        done=bool(state.get("done", False)),
+        history={k: list(state["history"][k]) for k in _HISTORY_KEYS},
+    )
+
+
+def _validation_batches(est: Estimator, val_sampler: BatchSampler) -> Iterable[Batch]:
+    """The validation batches: the noise of epoch 0 every time, so that epochs are comparable. A
+    grid-reading network's candidate search is the costly part and depends on the noise alone:
+    done once here."""
+    if not est.uses_grid:
+        return _Epoch0(val_sampler)
+    return [replace(b, bits=b.bits[:0], inputs=est.inputs(b.bits)) for b in val_sampler.epoch(0)]
+
+
+class _Epoch0:
+    """The batches of a sampler's epoch 0, drawn afresh (same noise) at every pass."""
+
+    def __init__(self, sampler: BatchSampler):
+        self.sampler = sampler
+
+    def __iter__(self) -> Iterator[Batch]:
+        return iter(self.sampler.epoch(0))
+
+
+def _train_epoch(
+    est: Estimator, opt, sampler: BatchSampler, cfg: TrainConfig, epoch: int, progress: bool
+) -> float:
+    """One pass over the epoch's batches; the mean training loss per trajectory."""
+    torch.manual_seed(cfg.seed * 7919 + epoch + 1)  # dropout masks of this epoch
+    est.train()
+    total, count = 0.0, 0
+    # The worker thread also prepares what the network reads (candidate search for tn-match).
+    batches = _prefetch(replace(b, inputs=est.inputs(b.bits)) for b in sampler.epoch(epoch))
+    if progress:
+        from tqdm import tqdm
+
+        batches = tqdm(
+            batches, total=len(sampler), desc=f"{cfg.model} epoch {epoch + 1}", leave=False, unit="batch"
+        )
+    for b in batches:
+        out = est(b.inputs, b.y)
+        total_loss, terms = est.loss(out, b.y)
+        loss = total_loss / terms
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        total += float(loss.detach()) * len(b.rows)
+        count += len(b.rows)
+    return total / count
+
+
+def _end_epoch(
+    run: Path, cfg: TrainConfig, est: Estimator, opt, sched, state: _State, figures: tuple
+) -> None:
+    """Book an epoch's ``(train_loss, val_loss, val_rmse, lr, seconds)``: history, best weights,
+    early stopping, and the checkpoint."""
+    state.epoch += 1
+    for k, v in zip(_HISTORY_KEYS, figures, strict=True):
+        state.history[k].append(float(v))
+    _, val_loss, val_rmse, _, _ = figures
+    if val_loss < state.best_val:
+        state.best_val = val_loss
+        est.save(run / MODEL_FILE, {"epoch": state.epoch, "val_loss": val_loss, "val_rmse": val_rmse})
+    # Early stopping waits for a real improvement; the best model is kept whatever its margin.
+    if val_loss < state.ref_val * (1 - cfg.min_delta):
+        state.ref_val, state.bad = val_loss, 0
+    else:
+        state.bad += 1
+    state.done = state.bad >= cfg.patience
+    fault("train.epoch", run / CHECKPOINT_FILE)
+    save_checkpoint(
+        run / CHECKPOINT_FILE,
+        {
+            "format": CHECKPOINT_FORMAT,
+            "config": cfg.to_json(),
+            "epoch": state.epoch,
+            "model": est.net.state_dict(),
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+            "history": state.history,
+            "best_val": state.best_val,
+            "ref_val": state.ref_val,
+            "bad_epochs": state.bad,
+            "done": state.done,
+        },
+    )
+    fault("train.checkpointed", run / CHECKPOINT_FILE)
+
+
+def _summary(state: _State, est: Estimator) -> dict[str, Any]:
+    history = state.history
     best_epoch = int(np.argmin(history["val_loss"])) if history["val_loss"] else -1
-    summary = {
-        "epochs": epoch,
+    return {
+        "epochs": state.epoch,
         "best_epoch": best_epoch + 1,
-        "best_val_loss": best_val,
+        "best_val_loss": state.best_val,
         "best_val_rmse": history["val_rmse"][best_epoch] if best_epoch >= 0 else math.nan,
         "train_seconds": float(sum(history["seconds"])),
         "parameters": est.n_parameters,
-        "stopped_early": done,
+        "stopped_early": state.done,
     }
-    _write_json(run / RUN_FILE, info | {"summary": summary})
-    return summary

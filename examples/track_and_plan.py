@@ -18,7 +18,6 @@ import torch
 import estimation
 import mmwsim
 import planning
-from mmwsim.demo import nearest_free_point
 from mmwsim.trajectories import generate_for_dataset
 
 folder = Path(sys.argv[1] if len(sys.argv) > 1 else tempfile.mkdtemp())
@@ -37,7 +36,7 @@ print(ds)
 
 # 2. Fingerprints: bits of (beam, delay bin) drawn with fresh 6 dB noise at every call.
 rng = np.random.default_rng(0)
-test = ds.trajectories("test")
+test = mmwsim.read_trajectories(ds, "test")
 held_out = np.flatnonzero(test.holdout)
 travel = np.linalg.norm(np.diff(test.positions[held_out], axis=1), axis=-1).sum(axis=1)
 pick = held_out[np.argmax(travel)]  # the held-out trajectory that travels farthest
@@ -68,8 +67,8 @@ rmse = estimation.trajectory_rmse(estimate[None], true[None])[0]
 print(f"estimate RMSE {rmse:.1f} m")
 
 # 5. Informed RRT* from the estimated first to the estimated last position, inside the corridor.
-space = planning.FreeSpace(scene, radius=0.5, corridor=planning.Corridor.from_array(estimate, 20.0))
-start, goal = nearest_free_point(space, estimate[0]), nearest_free_point(space, estimate[-1])
+space = planning.AgentSpace(scene, radius=0.5, corridor=planning.Corridor.from_array(estimate, 20.0))
+start, goal = space.nearest_free_point(estimate[0]), space.nearest_free_point(estimate[-1])
 if start is None or goal is None or np.allclose(start, goal):
     print("the corridor leaves no room to plan in")
 else:

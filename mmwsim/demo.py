@@ -29,20 +29,26 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .constants import SIGMA_DB
 from .errors import MmwsimError
-from .files import write_text_atomic
+from .files import RECORDING_SUFFIX, check_suffix, write_text_atomic
+
+if TYPE_CHECKING:
+    import planning
+    from estimation import SequenceSet
 
 __all__ = [
     "DemoConfig",
     "DemoResult",
+    "Estimates",
+    "PlannedPath",
+    "TrainedRun",
     "check_outputs",
     "demo_config",
-    "farthest_free_point",
-    "nearest_free_point",
     "run_demo",
 ]
 
@@ -72,7 +78,7 @@ class DemoConfig:
     epochs: int = 12
     epoch_size: int = 2048
     patience: int = 4
-    sigma: float = 6.0
+    sigma: float = SIGMA_DB
     shown: int = 8
     corridor_width: float = 10.0
     radius: float = 0.5
@@ -115,6 +121,59 @@ def demo_config(tiny: bool = False, seed: int = 0) -> DemoConfig:
         seed=int(seed),
         counts={"pedestrian": 3000, "vehicle": 3000, "hybrid": 1000, "static": 200},
     )
+
+
+@dataclass
+class TrainedRun:
+    """The training stage: run folder, the sequence sets it read (``train``, ``validation``, the
+    held-out test split and ``test``), its summary and per-epoch history (``train_loss``,
+    ``val_loss``, ``val_rmse``, ``lr``, ``seconds``)."""
+
+    run: Path
+    sets: dict[str, SequenceSet]
+    summary: dict[str, Any]
+    history: dict[str, list[float]]
+
+
+@dataclass
+class Estimates:
+    """The estimation stage, on the held-out split (``test`` when that is empty).
+
+    Attributes
+    ----------
+    split : str
+    ids : (n,) int64
+        Ids of the estimated trajectories.
+    pred : (n, L, 2) float64
+        Estimated positions, metres.
+    rmse : (n,) float64
+        Per-trajectory RMSE, metres; ``stats`` summarises it (``n``, ``mean``, ``median``, ``p95``).
+    order : (n,) int
+        The trajectories in the order they are tried for planning.
+    bits : (n, L, M, N_s) bool tensor
+        The noisy fingerprints the model was given.
+    """
+
+    split: str
+    ids: np.ndarray
+    pred: np.ndarray
+    rmse: np.ndarray
+    stats: dict[str, float]
+    order: np.ndarray
+    bits: Any
+
+
+@dataclass
+class PlannedPath:
+    """The planning stage: trajectory ``chosen`` (a row of :attr:`Estimates.pred`), the planner's
+    space (its corridor around the estimate), result and the exact optimum; ``target`` says what
+    the goal is."""
+
+    chosen: int
+    space: planning.AgentSpace
+    result: planning.PlanResult
+    optimum: planning.ShortestPath | None
+    target: str
 
 
 @dataclass
@@ -172,8 +231,7 @@ def check_outputs(out: str | os.PathLike, rrd: str | os.PathLike | None = None) 
     if out.exists() and not out.is_dir():
         raise MmwsimError(f"--out {out}: exists and is not a folder")
     rrd_path = out / RECORDING_FILE if rrd is None else Path(rrd)
-    if rrd_path.suffix != ".rrd":
-        raise MmwsimError(f"--rrd {rrd_path}: a recording must end in .rrd")
+    check_suffix(rrd_path, RECORDING_SUFFIX, "--rrd")
     if rrd_path.exists() and rrd_path.is_dir():
         raise MmwsimError(f"--rrd {rrd_path}: is a folder")
     parent = rrd_path.parent
@@ -242,41 +300,40 @@ def _stages(cfg: DemoConfig, out: Path, rrd_path: Path, progress: bool, log) -> 
     seconds["trajectories"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    run, sets, summary, history = _train(cfg, ds, out / cfg.run_name, progress, log)
+    trained = _train(cfg, ds, out / cfg.run_name, progress, log)
     seconds["training"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    est = _estimate(cfg, ds, run, sets, log)
+    est = _estimate(cfg, ds, trained, log)
     seconds["estimation"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     planned = _plan(cfg, scene, est, log)
-    chosen = planned["chosen"]
     seconds["planning"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     log(f"[6/6] recording {rrd_path}")
-    _record(cfg, rrd_path, ds, scene, sets[est["split"]], est, history, planned)
+    _record(cfg, rrd_path, ds, scene, trained, est, planned)
     seconds["recording"] = time.perf_counter() - t0
 
-    result_plan = planned["result"]
+    plan = planned.result
     result = DemoResult(
         out=out,
         dataset=out / cfg.dataset_name,
-        run=run,
+        run=trained.run,
         rrd=rrd_path,
         summary=out / SUMMARY_FILE,
-        trajectory_id=int(est["ids"][chosen]),
-        rmse_m=float(est["rmse"][chosen]),
-        holdout_rmse_m=est["stats"],
-        start=[float(v) for v in result_plan.start],
-        goal=[float(v) for v in result_plan.goal],
-        target=planned["target"],
-        path_length_m=float(result_plan.length),
-        optimum_m=float(planned["optimum"].length) if planned["optimum"] is not None else math.inf,
-        corridor_width_m=float(planned["space"].corridor.width),
-        solved=bool(result_plan.solved),
-        epochs=int(summary["epochs"]),
+        trajectory_id=int(est.ids[planned.chosen]),
+        rmse_m=float(est.rmse[planned.chosen]),
+        holdout_rmse_m=est.stats,
+        start=[float(v) for v in plan.start],
+        goal=[float(v) for v in plan.goal],
+        target=planned.target,
+        path_length_m=float(plan.length),
+        optimum_m=float(planned.optimum.length) if planned.optimum is not None else math.inf,
+        corridor_width_m=float(planned.space.corridor.width),
+        solved=bool(plan.solved),
+        epochs=int(trained.summary["epochs"]),
         seconds={k: round(v, 2) for k, v in seconds.items()},
     )
     _write_json(result.summary, {"config": cfg.as_dict(), **result.to_dict()})
@@ -285,8 +342,7 @@ def _stages(cfg: DemoConfig, out: Path, rrd_path: Path, progress: bool, log) -> 
 
 # ---------------------------------------------------------------------- stages
 def _dataset(cfg: DemoConfig, path: Path, progress: bool, log):
-    from .dataset import Dataset
-    from .dataset import generate as generate_dataset
+    from .dataset import Dataset, generate_dataset
     from .dataset.config import resolve_config
     from .scene import load_scene
 
@@ -330,7 +386,7 @@ def _trajectories(cfg: DemoConfig, ds, scene, log) -> None:
     )
 
 
-def _train(cfg: DemoConfig, ds, run: Path, progress: bool, log):
+def _train(cfg: DemoConfig, ds, run: Path, progress: bool, log) -> TrainedRun:
     import torch
 
     from estimation import TrainConfig, load_checkpoint, load_splits, read_run_info, train
@@ -380,10 +436,10 @@ def _train(cfg: DemoConfig, ds, run: Path, progress: bool, log):
         f"      {summary['epochs']} epochs, best validation RMSE {summary['best_val_rmse']:.2f} m "
         f"at epoch {summary['best_epoch']}"
     )
-    return run, sets, summary, history
+    return TrainedRun(run, sets, summary, history)
 
 
-def _estimate(cfg: DemoConfig, ds, run: Path, sets: dict, log) -> dict[str, Any]:
+def _estimate(cfg: DemoConfig, ds, trained: TrainedRun, log) -> Estimates:
     """Estimates of the held-out trajectories from fresh noisy fingerprints, and the one to plan along."""
     import torch
 
@@ -391,13 +447,13 @@ def _estimate(cfg: DemoConfig, ds, run: Path, sets: dict, log) -> dict[str, Any]
 
     from .trajectories import read_trajectories
 
-    split = SPLIT if sets[SPLIT].n else "test"
-    data = sets[split]
+    split = SPLIT if trained.sets[SPLIT].n else "test"
+    data = trained.sets[split]
     if data.n == 0:
         raise MmwsimError("the demo's test split is empty; use more trajectories")
     t = read_trajectories(ds.path, "test")
     ids = t.ids[t.holdout] if split == SPLIT else t.ids
-    est = Estimator.load(run).attach(data)
+    est = Estimator.load(trained.run).attach(data)
     gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + 17)
     bits = noisy_bits(data, cfg.sigma, gen)
     pred = np.concatenate(
@@ -409,15 +465,7 @@ def _estimate(cfg: DemoConfig, ds, run: Path, sets: dict, log) -> dict[str, Any]
         f"[4/6] estimate of {data.n} {split} trajectories at {cfg.sigma:g} dB: "
         f"RMSE mean {stats['mean']:.2f} m, median {stats['median']:.2f} m"
     )
-    return {
-        "split": split,
-        "ids": ids,
-        "pred": pred,
-        "rmse": rmse,
-        "stats": stats,
-        "order": _candidates(pred, rmse, cfg.step),
-        "bits": bits,
-    }
+    return Estimates(split, ids, pred, rmse, stats, _candidates(pred, rmse, cfg.step), bits)
 
 
 def _candidates(pred: np.ndarray, rmse: np.ndarray, step: float) -> np.ndarray:
@@ -432,7 +480,7 @@ def _candidates(pred: np.ndarray, rmse: np.ndarray, step: float) -> np.ndarray:
     return np.lexsort((np.arange(len(rmse)), np.where(good, -apart, rmse), ~good))
 
 
-def _plan(cfg: DemoConfig, scene, est: dict[str, Any], log) -> dict[str, Any]:
+def _plan(cfg: DemoConfig, scene, est: Estimates, log) -> PlannedPath:
     """Informed RRT* inside the corridor around the estimate of a held-out trajectory, from its
     estimated first position to its estimated last one.
 
@@ -444,22 +492,22 @@ def _plan(cfg: DemoConfig, scene, est: dict[str, Any], log) -> dict[str, Any]:
     """
     import planning
 
-    for chosen in est["order"][:_MAX_TRIES]:
-        estimate = est["pred"][chosen]
+    for chosen in est.order[:_MAX_TRIES]:
+        estimate = est.pred[chosen]
         for width in (cfg.corridor_width, 2 * cfg.corridor_width):
             corridor = planning.Corridor.from_array(estimate, width)
-            space = planning.FreeSpace(scene, radius=cfg.radius, corridor=corridor)
-            start, goal = nearest_free_point(space, estimate[0]), nearest_free_point(space, estimate[-1])
+            space = planning.AgentSpace(scene, radius=cfg.radius, corridor=corridor)
+            start, goal = space.nearest_free_point(estimate[0]), space.nearest_free_point(estimate[-1])
             target = "the estimated last position"
             if start is not None and (goal is None or np.linalg.norm(goal - start) < cfg.step):
-                goal, target = farthest_free_point(space, start), "the farthest free point of the corridor"
+                goal, target = space.farthest_free_point(start), "the farthest free point of the corridor"
             if start is None or goal is None or np.linalg.norm(goal - start) < cfg.step:
                 break
             optimum = planning.shortest_path(space, start, goal)
             if optimum is not None:
                 return _run_planner(cfg, int(chosen), space, start, goal, target, optimum, est, log)
     raise MmwsimError(
-        f"none of {min(len(est['order']), _MAX_TRIES)} estimated trajectories leaves a collision-free path "
+        f"none of {min(len(est.order), _MAX_TRIES)} estimated trajectories leaves a collision-free path "
         f"of at least {cfg.step:g} m within {2 * cfg.corridor_width:g} m of it"
     )
 
@@ -468,8 +516,8 @@ _MAX_TRIES = 10
 
 
 def _run_planner(
-    cfg: DemoConfig, chosen: int, space, start, goal, target: str, optimum, est, log
-) -> dict[str, Any]:
+    cfg: DemoConfig, chosen: int, space, start, goal, target: str, optimum, est: Estimates, log
+) -> PlannedPath:
     import planning
 
     result = planning.plan(
@@ -484,79 +532,30 @@ def _run_planner(
     )
     found = f"{result.length:.2f} m" if result.solved else "no path"
     log(
-        f"[5/6] trajectory {int(est['ids'][chosen])} (estimate RMSE {est['rmse'][chosen]:.2f} m): "
+        f"[5/6] trajectory {int(est.ids[chosen])} (estimate RMSE {est.rmse[chosen]:.2f} m): "
         f"{result.label} in the {space.corridor.width:g} m corridor around its estimate, from the estimated "
         f"first position ({start[0]:.1f}, {start[1]:.1f}) to {target} ({goal[0]:.1f}, {goal[1]:.1f}): "
         f"{found} after {result.iterations} iterations (optimum {optimum.length:.2f} m)"
     )
-    return {"chosen": chosen, "space": space, "result": result, "optimum": optimum, "target": target}
-
-
-def _clear_nodes(space) -> np.ndarray:
-    """(k, 2) float64 nodes of the space's clearance raster where the agent certainly fits, metres."""
-    clear = np.argwhere(space.margin > 0.1 * space.radius)  # raster node indices, x first
-    return space.bounds[0] + space.resolution * clear
-
-
-def farthest_free_point(space, point) -> np.ndarray | None:
-    """The node of the space's clearance raster farthest (straight-line) from ``point``, or None.
-
-    Parameters
-    ----------
-    space : planning.FreeSpace
-    point : (2,) float, metres
-
-    Returns
-    -------
-    (2,) float64 or None
-    """
-    nodes = _clear_nodes(space)
-    if not len(nodes):
-        return None
-    return nodes[int(np.argmax(((nodes - np.asarray(point, dtype=np.float64)) ** 2).sum(axis=1)))]
-
-
-def nearest_free_point(space, point) -> np.ndarray | None:
-    """Where a planner can start or end closest to ``point``.
-
-    Parameters
-    ----------
-    space : planning.FreeSpace
-    point : (2,) float, metres
-
-    Returns
-    -------
-    (2,) float64 or None
-        ``point`` itself when the agent may stand there (inside the corridor, clear of every
-        obstacle), else the nearest node of the space's clearance raster with a margin of at least
-        a tenth of the agent radius, else None (no free point in the region).
-    """
-    from planning import PlanningError
-
-    try:
-        return np.array(space.check_endpoint(point, "point"), dtype=np.float64)
-    except PlanningError:
-        pass
-    nodes = _clear_nodes(space)
-    if not len(nodes):
-        return None
-    return nodes[int(np.argmin(((nodes - np.asarray(point, dtype=np.float64)) ** 2).sum(axis=1)))]
+    return PlannedPath(chosen, space, result, optimum, target)
 
 
 # ---------------------------------------------------------------------- recording
-def _record(cfg: DemoConfig, path: Path, ds, scene, data, est: dict, history, planned: dict) -> None:
-    from estimation import Evaluation, log_training, log_trajectories
+def _record(
+    cfg: DemoConfig, path: Path, ds, scene, trained: TrainedRun, est: Estimates, planned: PlannedPath
+) -> None:
+    from estimation import Evaluation, log_estimates, log_training
     from planning import log_plan
 
     from .dataset.record import log_dataset, log_fingerprint_steps
     from .recording import FAMILIES, Recording
     from .tracer.record import log_paths
 
-    chosen, split = planned["chosen"], est["split"]
+    data, chosen = trained.sets[est.split], planned.chosen
     true = data.positions[chosen].astype(np.float64)
     grid_index = ds.nearest(true)
     visited = grid_index[np.sort(np.unique(grid_index, return_index=True)[1])]  # in the order walked
-    rest = [i for i in np.argsort(est["rmse"], kind="stable") if i != chosen][: cfg.shown - 1]
+    rest = [i for i in np.argsort(est.rmse, kind="stable") if i != chosen][: cfg.shown - 1]
     shown = np.array([chosen, *rest], dtype=np.int64)
     with Recording(path, "demo", families=FAMILIES, config=cfg.as_dict(), extent=scene.extent) as rec:
         # Scene, beam patterns, coverage per beam, and PDP / one fingerprint at the receivers along
@@ -564,27 +563,19 @@ def _record(cfg: DemoConfig, path: Path, ds, scene, data, est: dict, history, pl
         log_dataset(rec, ds, receivers=visited, scene=scene, seed=cfg.seed)
         log_paths(rec, ds.paths(grid_index))
         # The fingerprints the model saw, step by step.
-        ident = int(est["ids"][chosen])
+        ident = int(est.ids[chosen])
         log_fingerprint_steps(
             rec,
             f"trajectory_{ident}",
             data.grid_pdp[data.index[chosen]].float().numpy(),
-            est["bits"][chosen].numpy().astype(np.uint8),
+            est.bits[chosen].numpy().astype(np.uint8),
             f"trajectory {ident} (planned along)",
         )
         # True against estimated trajectories.
-        ev = Evaluation(
-            examples={
-                split: {
-                    "true": data.positions[shown],
-                    "kind": data.kind[shown],
-                    MODEL: est["pred"][shown],
-                }
-            }
-        )
-        log_trajectories(rec, ev, footprints=scene.footprints)
-        log_training(rec, MODEL, history)
-        log_plan(rec, planned["space"], planned["result"], planned["optimum"])
+        examples = {"true": data.positions[shown], "kind": data.kind[shown], MODEL: est.pred[shown]}
+        log_estimates(rec, Evaluation(examples={est.split: examples}), footprints=scene.footprints)
+        log_training(rec, MODEL, trained.history)
+        log_plan(rec, planned.space, planned.result, planned.optimum)
 
 
 def _write_json(path: Path, obj: Any) -> None:

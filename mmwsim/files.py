@@ -21,7 +21,9 @@ from .errors import MmwsimError
 from .faults import fault
 
 __all__ = [
+    "RECORDING_SUFFIX",
     "atomic_path",
+    "check_suffix",
     "check_output_folder",
     "make_dirs",
     "reading",
@@ -136,6 +138,20 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         _unlink_quietly(tmp)
         raise
+
+
+RECORDING_SUFFIX = ".rrd"
+"""The suffix of Rerun recordings."""
+
+
+def check_suffix(path: str | os.PathLike, suffix: str, what: str = "") -> Path:
+    """``path`` as a :class:`~pathlib.Path` when it ends in ``suffix``, else a one-line
+    :class:`MmwsimError` naming the option ``what`` (e.g. ``--rrd``) and the path."""
+    p = Path(path)
+    if p.suffix.lower() != suffix:
+        kind = "a recording" if suffix == RECORDING_SUFFIX else "the file"
+        raise MmwsimError(f"{f'{what} ' if what else ''}{p}: {kind} must end in {suffix}")
+    return p
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:

@@ -32,7 +32,6 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -41,6 +40,7 @@ import rerun.blueprint as rrb
 
 from .config import canonical_json, content_hash
 from .errors import MmwsimError
+from .files import RECORDING_SUFFIX, check_suffix
 from .materials import material_color
 
 if TYPE_CHECKING:
@@ -60,6 +60,7 @@ __all__ = [
     "log_map_context",
     "log_scene",
     "log_footprints",
+    "log_track",
     "north_up",
     "scene_colors",
 ]
@@ -180,13 +181,6 @@ def camera(extent: np.ndarray | Sequence[Sequence[float]]) -> rrb.EyeControls3D:
     )
 
 
-def _default_extent() -> np.ndarray:
-    """The box of the catalogue's default scene (the demo's), for callers that give none."""
-    from .scene import load_scene
-
-    return load_scene("default").extent
-
-
 def _legend_view(tab: str) -> rrb.Spatial2DView:
     return rrb.Spatial2DView(name="Legend", origin=f"{Entity.LEGEND}/{tab}", background=[20, 20, 24])
 
@@ -207,7 +201,7 @@ def blueprint(
     families : sequence of str
         Any of ``world``, ``coverage``, ``bff``, ``trajectories``, ``training``, ``planner``.
     extent : (2, 3) float, optional
-        Scene box the 3D camera frames, metres; by default the default scene's (the demo's).
+        Scene box the 3D camera frames, metres; without one the viewer frames the content itself.
     timeline : str, optional
         Timeline the time panel opens on; by default the one of the first family that has one.
     config : bool
@@ -218,7 +212,7 @@ def blueprint(
         raise ValueError(f"unknown recording families {sorted(unknown)}")
     tabs: list[Any] = []
     if "world" in families:
-        eye = camera(_default_extent() if extent is None else extent)
+        eye = None if extent is None else camera(extent)
         tabs.append(
             rrb.Horizontal(
                 rrb.Spatial3DView(
@@ -341,9 +335,7 @@ class Recording:
         config: Any = None,
         extent: np.ndarray | None = None,
     ):
-        self.path = Path(path)
-        if self.path.suffix != ".rrd":
-            raise MmwsimError(f"{self.path}: a recording must end in .rrd")
+        self.path = check_suffix(path, RECORDING_SUFFIX)
         parent = self.path.parent
         if not parent.is_dir() or not os.access(parent, os.W_OK):
             raise MmwsimError(f"{self.path}: folder {parent} does not exist or is not writable")
@@ -673,3 +665,65 @@ def log_map_context(
     strips = [np.asarray(g.coords) for g in shapely.get_parts(lines) if not g.is_empty and len(g.coords) > 1]
     if strips:
         rec.log(f"{root}/map", rr.LineStrips2D(strips, colors=[(110, 110, 118)], radii=0.3), static=True)
+
+
+def log_track(
+    rec: Recording,
+    entity: str,
+    positions: np.ndarray,
+    colour: Sequence[int],
+    label: str | None = None,
+    width: float = 1.2,
+    alpha: int = 255,
+    trail: float = 2.0,
+    head: float = 4.5,
+) -> None:
+    """One trajectory: the whole track at ``entity`` (static), and at ``entity/now`` on the
+    ``step`` timeline, at step k, the trail ``positions[:k+1]`` and the head ``positions[k]``.
+
+    Parameters
+    ----------
+    rec : Recording
+    entity : str
+        e.g. :meth:`Entity.trajectory` ``(id, source)``.
+    positions : (L, 2) float, metres
+    colour : (r, g, b)
+    label : str, optional
+        Shown on hover.
+    width, trail, head : float
+        Screen points: the static track's line, the trail's line and the head's radius.
+    alpha : int
+        Opacity of the static track (0..255).
+    """
+    pos = np.asarray(positions, dtype=np.float32).reshape(-1, 2)
+    rgb = tuple(int(c) for c in colour[:3])
+    rec.log(
+        entity,
+        rr.LineStrips2D(
+            [pos],
+            colors=[(*rgb, int(alpha))],
+            radii=rr.Radius.ui_points(width),
+            labels=[label] if label else None,
+            show_labels=False,
+        ),
+        static=True,
+    )
+    steps = np.arange(len(pos))
+    # One columnar call per track: row k holds the trail up to step k and the head.
+    columns = [
+        *rr.LineStrips2D.columns(
+            strips=[pos[: k + 1] for k in steps],
+            colors=[rgb] * len(pos),
+            radii=rr.Radius.ui_points(np.full(len(pos), trail)),
+        ),
+        *rr.Points2D.columns(
+            positions=pos,
+            colors=[rgb] * len(pos),
+            radii=rr.Radius.ui_points(np.full(len(pos), head)),
+            labels=[label] * len(pos) if label else None,
+            show_labels=np.zeros(len(pos), dtype=bool),
+        ),
+    ]
+    rec.stream.send_columns(
+        f"{entity}/now", indexes=[rr.TimeColumn(Timeline.STEP, sequence=steps)], columns=columns
+    )

@@ -1,4 +1,4 @@
-"""The exact shortest path in a :class:`FreeSpace`: a visibility graph over the inflated obstacles.
+"""The exact shortest path in a :class:`AgentSpace`: a visibility graph over the inflated obstacles.
 
 The agent's centre moves in F = region ∩ corridor − (obstacles ⊕ disc(radius)). A shortest
 path in a polygonal domain is a polyline whose inner vertices are reflex vertices of F (convex
@@ -19,7 +19,7 @@ import scipy.sparse.csgraph
 import shapely
 from shapely.geometry.polygon import orient
 
-from .freespace import FreeSpace
+from .space import AgentSpace
 
 __all__ = ["ShortestPath", "shortest_path", "free_region"]
 
@@ -46,7 +46,7 @@ class ShortestPath:
     n_edges: int
 
 
-def free_region(space: FreeSpace, quad_segs: int = 16) -> shapely.Geometry:
+def free_region(space: AgentSpace, quad_segs: int = 16) -> shapely.Geometry:
     """F: the planning region, cut to the corridor, minus the obstacles grown by the agent radius."""
     (x0, y0), (x1, y1) = space.bounds
     region = shapely.box(x0, y0, x1, y1)
@@ -58,12 +58,12 @@ def free_region(space: FreeSpace, quad_segs: int = 16) -> shapely.Geometry:
     return region
 
 
-def shortest_path(space: FreeSpace, start, goal, quad_segs: int = 16) -> ShortestPath | None:
+def shortest_path(space: AgentSpace, start, goal, quad_segs: int = 16) -> ShortestPath | None:
     """The shortest path from ``start`` to ``goal`` in the free space, or None if none exists.
 
     Parameters
     ----------
-    space : FreeSpace
+    space : AgentSpace
     start, goal : (2,) float
         Metres.
     quad_segs : int

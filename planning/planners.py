@@ -1,7 +1,7 @@
-"""Sampling-based planners from OMPL over a :class:`FreeSpace`: RRT, RRT*, Informed RRT*, BIT*, AORRTC.
+"""Sampling-based planners from OMPL over a :class:`AgentSpace`: RRT, RRT*, Informed RRT*, BIT*, AORRTC.
 
 The state space is the plane bounded by the free space's region; validity and motions are
-answered by :class:`FreeSpace` (certificate, then FCL). RRT-family planners take no custom
+answered by :class:`AgentSpace` (certificate, then FCL). RRT-family planners take no custom
 sampler, so a corridor restricts sampling through the bounds (the corridor's bounding box)
 and rejection in the motion validator.
 
@@ -24,18 +24,20 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from .errors import PlanningError
-from .freespace import FreeSpace
+from .names import PLANNER_NAMES, PlannerName
+from .space import AgentSpace
 
 __all__ = ["PLANNERS", "PlanResult", "Snapshot", "plan", "planner_label", "ompl_seed"]
 
 # name -> (OMPL class, label, uses informed sampling)
-PLANNERS: dict[str, tuple[str, str, bool]] = {
+PLANNERS: dict[PlannerName, tuple[str, str, bool]] = {
     "rrt": ("RRT", "RRT", False),
     "rrtstar": ("RRTstar", "RRT*", False),
     "irrtstar": ("InformedRRTstar", "Informed RRT*", True),
     "bitstar": ("BITstar", "BIT*", True),
     "aorrtc": ("AORRTC", "AORRTC", True),
 }
+assert tuple(PLANNERS) == PLANNER_NAMES, "the planners and the OMPL-free list of names differ"
 
 
 def planner_label(name: str) -> str:
@@ -146,10 +148,10 @@ def ompl_seed(seed: int) -> int:
 
 
 def plan(
-    space: FreeSpace,
+    space: AgentSpace,
     start,
     goal,
-    planner: str = "irrtstar",
+    planner: PlannerName = "irrtstar",
     iterations: int | None = 1000,
     time_limit: float | None = None,
     step: float = 5.0,
@@ -160,7 +162,7 @@ def plan(
 
     Parameters
     ----------
-    space : FreeSpace
+    space : AgentSpace
     start, goal : (2,) float
         Metres; must be valid states (else :class:`PlanningError`).
     planner : str
@@ -182,84 +184,37 @@ def plan(
     PlanResult
         ``solved`` is False when the budget ran out before a path was found.
     """
-    if planner not in PLANNERS:
-        raise PlanningError(f"unknown planner {planner!r}; choose from {', '.join(PLANNERS)}")
-    if iterations is None and time_limit is None:
-        raise PlanningError("give an iteration budget, a time budget or both")
-    if iterations is not None and (int(iterations) != iterations or iterations < 1):
-        raise PlanningError(f"iterations must be a positive integer, got {iterations!r}")
-    if time_limit is not None and not (math.isfinite(time_limit) and time_limit > 0):
-        raise PlanningError(f"time limit must be a positive number of seconds, got {time_limit!r}")
-    if not (math.isfinite(step) and step > 0):
-        raise PlanningError(f"step must be a positive number of metres, got {step!r}")
-    if int(seed) != seed or seed < 0:
-        raise PlanningError(f"seed must be a non-negative integer, got {seed!r}")
+    _check_budget(planner, iterations, time_limit, step, seed)
     s = np.array(space.check_endpoint(start, "start"))
     g = np.array(space.check_endpoint(goal, "goal"))
     if np.array_equal(s, g):
         raise PlanningError(f"start and goal coincide at ({s[0]:g}, {s[1]:g})")
 
     import ompl.base as ob
-    import ompl.geometric as og
     import ompl.util as ou
 
-    cls_name, _, _ = PLANNERS[planner]
     level = ou.getLogLevel()
     # OMPL logs an error when reseeded after its first draw; reseeding still makes the runs
     # that follow deterministic, which is all that is needed here.
     ou.setLogLevel(ou.LOG_NONE)
     try:
         ou.RNG.setSeed(ompl_seed(seed))
-        rv = ob.RealVectorStateSpace(2)
-        bounds = ob.RealVectorBounds(2)
-        for k in range(2):
-            bounds.setLow(k, float(space.bounds[0, k]))
-            bounds.setHigh(k, float(space.bounds[1, k]))
-        rv.setBounds(bounds)
-        si = ob.SpaceInformation(rv)
-        check_state = space.state_valid
-        si.setStateValidityChecker(lambda st: check_state(st[0], st[1]))
-        validator = _motion_validator(ob, si, space.motion_valid)
-        si.setMotionValidator(validator)
-        si.setup()
-        pdef = ob.ProblemDefinition(si)
-        st_s, st_g = rv.allocState(), rv.allocState()
-        st_s[0], st_s[1] = float(s[0]), float(s[1])
-        st_g[0], st_g[1] = float(g[0]), float(g[1])
-        pdef.setStartAndGoalStates(st_s, st_g)
-        pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
-        p = getattr(og, cls_name)(si)
-        if hasattr(p, "setRange"):
-            p.setRange(float(step))
-        if hasattr(p, "setKNearest"):
-            p.setKNearest(False)
-        p.setProblemDefinition(pdef)
-        p.setup()
-
+        p, pdef, si, validator = _problem(space, planner, s, g, step)
         before = dict(space.stats)
         run = _Monitor(p, ob, si, iterations, time_limit, snapshots, start_goal=(s, g))
         run.t0 = time.perf_counter()
         p.solve(ob.PlannerTerminationCondition(run))
         run_time = time.perf_counter() - run.t0 - run.snap_time
-        solved = bool(pdef.hasExactSolution())
         n_iter = run.iterations()
         if hasattr(p, "numIterations") and planner != "bitstar":
             n_iter = int(p.numIterations())
-        path, length, problem = np.zeros((0, 2)), math.inf, None
-        if solved:
-            sol = pdef.getSolutionPath()
-            path = np.array([[sol.getState(k)[0], sol.getState(k)[1]] for k in range(sol.getStateCount())])
-            problem = _path_problem(space, path, s, g)
-            if problem is None:
-                length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-                if not run.curve or run.curve[-1][2] > length + 1e-9:
-                    run.curve.append((n_iter, run_time, length))
-            else:
-                solved, path = False, np.zeros((0, 2))
+        solved, path, length, problem = _solution(space, pdef, s, g)
+        if solved and (not run.curve or run.curve[-1][2] > length + 1e-9):
+            run.curve.append((n_iter, run_time, length))
         if snapshots and (not run.snaps or run.snaps[-1].iteration != n_iter):
             run.snapshot(n_iter, force_cost=length)
         checks = {k: space.stats[k] - before.get(k, 0) for k in space.stats}
-        del validator
+        del validator  # kept alive while OMPL held it
     finally:
         ou.setLogLevel(level)
     return PlanResult(
@@ -280,7 +235,71 @@ def plan(
     )
 
 
-def _path_problem(space: FreeSpace, path: np.ndarray, s: np.ndarray, g: np.ndarray) -> str | None:
+def _check_budget(planner: str, iterations, time_limit, step: float, seed: int) -> None:
+    """One-line errors for an unknown planner or an unusable budget, step or seed."""
+    if planner not in PLANNERS:
+        raise PlanningError(f"unknown planner {planner!r}; choose from {', '.join(PLANNERS)}")
+    if iterations is None and time_limit is None:
+        raise PlanningError("give an iteration budget, a time budget or both")
+    if iterations is not None and (int(iterations) != iterations or iterations < 1):
+        raise PlanningError(f"iterations must be a positive integer, got {iterations!r}")
+    if time_limit is not None and not (math.isfinite(time_limit) and time_limit > 0):
+        raise PlanningError(f"time limit must be a positive number of seconds, got {time_limit!r}")
+    if not (math.isfinite(step) and step > 0):
+        raise PlanningError(f"step must be a positive number of metres, got {step!r}")
+    if int(seed) != seed or seed < 0:
+        raise PlanningError(f"seed must be a non-negative integer, got {seed!r}")
+
+
+def _problem(space: AgentSpace, planner: str, s: np.ndarray, g: np.ndarray, step: float):
+    """The OMPL planner set up on the space's bounds, validity and motion checks, from ``s`` to
+    ``g`` minimising path length: ``(planner, problem definition, space information, motion
+    validator)``."""
+    import ompl.base as ob
+    import ompl.geometric as og
+
+    rv = ob.RealVectorStateSpace(2)
+    bounds = ob.RealVectorBounds(2)
+    for k in range(2):
+        bounds.setLow(k, float(space.bounds[0, k]))
+        bounds.setHigh(k, float(space.bounds[1, k]))
+    rv.setBounds(bounds)
+    si = ob.SpaceInformation(rv)
+    check_state = space.state_valid
+    si.setStateValidityChecker(lambda st: check_state(st[0], st[1]))
+    validator = _motion_validator(ob, si, space.motion_valid)
+    si.setMotionValidator(validator)
+    si.setup()
+    pdef = ob.ProblemDefinition(si)
+    st_s, st_g = rv.allocState(), rv.allocState()
+    st_s[0], st_s[1] = float(s[0]), float(s[1])
+    st_g[0], st_g[1] = float(g[0]), float(g[1])
+    pdef.setStartAndGoalStates(st_s, st_g)
+    pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
+    p = getattr(og, PLANNERS[planner][0])(si)
+    if hasattr(p, "setRange"):
+        p.setRange(float(step))
+    if hasattr(p, "setKNearest"):
+        p.setKNearest(False)
+    p.setProblemDefinition(pdef)
+    p.setup()
+    return p, pdef, si, validator
+
+
+def _solution(space: AgentSpace, pdef, s: np.ndarray, g: np.ndarray):
+    """``(solved, path (n, 2), length, problem)`` of the planner's exact solution, after the final
+    exact check of every step (a path failing it counts as none, with the reason in ``problem``)."""
+    if not pdef.hasExactSolution():
+        return False, np.zeros((0, 2)), math.inf, None
+    sol = pdef.getSolutionPath()
+    path = np.array([[sol.getState(k)[0], sol.getState(k)[1]] for k in range(sol.getStateCount())])
+    problem = _path_problem(space, path, s, g)
+    if problem is not None:
+        return False, np.zeros((0, 2)), math.inf, problem
+    return True, path, float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))), None
+
+
+def _path_problem(space: AgentSpace, path: np.ndarray, s: np.ndarray, g: np.ndarray) -> str | None:
     """Why a returned path is unusable, or None: ends must match and every step pass the exact test."""
     if len(path) < 2 or not (np.allclose(path[0], s, atol=1e-9) and np.allclose(path[-1], g, atol=1e-9)):
         return "the planner returned a path that does not join start and goal"
@@ -292,7 +311,7 @@ def _path_problem(space: FreeSpace, path: np.ndarray, s: np.ndarray, g: np.ndarr
 
 def _motion_validator(ob, si, check):
     class _Motion(ob.MotionValidator):
-        """Exact motion validation delegated to FreeSpace.motion_valid (swept volume)."""
+        """Exact motion validation delegated to AgentSpace.motion_valid (swept volume)."""
 
         def checkMotion(self, s1, s2, *last_valid):
             # The planners used here only call the two-state form.

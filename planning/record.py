@@ -18,9 +18,9 @@ from mmwsim.recording import (
     north_up,
 )
 
-from .freespace import FreeSpace
 from .optimal import ShortestPath
 from .planners import PLANNERS, PlanResult
+from .space import AgentSpace
 
 __all__ = ["log_plan", "informed_ellipse"]
 
@@ -52,7 +52,7 @@ def informed_ellipse(start, goal, cost: float, n: int = 96) -> np.ndarray | None
 
 
 def log_plan(
-    rec: Recording, space: FreeSpace, result: PlanResult, optimum: ShortestPath | None = None
+    rec: Recording, space: AgentSpace, result: PlanResult, optimum: ShortestPath | None = None
 ) -> None:
     """Log a run: static context (footprints, corridor, start/goal, optimum), the end of the
     search (final tree faint, path found, a summary, the best cost as bars), then per snapshot
@@ -180,7 +180,7 @@ def _labelled_path(path, colour, radius: float, label: str, draw_order: float) -
     )
 
 
-def _extent_points(space: FreeSpace, result: PlanResult, optimum: ShortestPath | None) -> np.ndarray:
+def _extent_points(space: AgentSpace, result: PlanResult, optimum: ShortestPath | None) -> np.ndarray:
     """(n, 2) points spanning what the planner view shows: ends, paths, final tree, corridor."""
     parts = [np.asarray([result.start, result.goal], dtype=np.float64)]
     if result.solved:

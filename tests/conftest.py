@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rerun as rr
-from scene_helpers import write_scene_folder
+
+from tests.helpers.scenes import write_scene_folder
 
 
 @pytest.fixture(autouse=True)

@@ -53,7 +53,10 @@ def test_manhattan_is_deterministic_and_seeded():
     )
     assert a.vertices.tobytes() == b.vertices.tobytes() and a.faces.tobytes() == b.faces.tobytes()
     assert a.vertices.shape != c.vertices.shape or not np.array_equal(a.vertices, c.vertices)
-    assert a.check_transmitter(a.transmitter.position) is not None
+    np.testing.assert_array_equal(a.check_transmitter(a.transmitter.position), a.transmitter.position)
+    inside = next(o for o in a.objects if o.kind == "building").mesh.centroid
+    with pytest.raises(MmwsimError, match="inside a building"):
+        a.check_transmitter(inside)
 
 
 def test_manhattan_street_widths_and_heights():

@@ -5,9 +5,9 @@ import sys
 
 import pytest
 import trimesh
-from rrd_helpers import blueprint_count, check_blueprint, entity_rows
 
 from mmwsim.cli import main
+from tests.helpers.rrd import blueprint_count, check_blueprint, entity_rows
 
 
 def test_show_default(capsys):

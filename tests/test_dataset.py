@@ -4,13 +4,14 @@ import json
 
 import numpy as np
 import pytest
-from rrd_helpers import check_blueprint, entity_rows
 
 import mmwsim
 from mmwsim.antennas import RotatingHorn
-from mmwsim.dataset import Dataset, generate, record_dataset
+from mmwsim.dataset import Dataset, record_dataset
+from mmwsim.dataset.generate import generate
 from mmwsim.errors import MmwsimError
 from mmwsim.fingerprints import power_delay_profile
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 SMALL = dict(spacing=40.0, max_reflections=2, n_rays=100_000, tile_size=16, path_chunk=64, progress=False)
 
@@ -35,6 +36,19 @@ def test_layout_and_attrs(store):
     meta = json.loads((store / "grid" / "pdp" / "zarr.json").read_text())
     assert [c["name"] for c in meta["codecs"]] == ["bytes", "zstd"]
     assert not (store.parent / "default.zarr.partial").exists()
+
+
+def test_summary_counts_valid_receivers_and_paths(store):
+    """The store's summary (``n_valid``, ``n_paths``) is what its arrays hold."""
+    ds = Dataset.open(store)
+    info = ds.root.attrs["mmwsim"]
+    assert info["complete"] is True
+    assert info["n_valid"] == int(ds.valid.sum()) > 0
+    assert info["n_paths"] == int(np.asarray(ds.root["grid/paths/count"][:]).sum()) > info["n_valid"]
+    # valid means outdoors and detected: some noise-free PDP entry of the window at the threshold
+    lo, hi = ds.config["bins"]
+    detected = (np.asarray(ds.pdp[:])[:, :, lo:hi] >= ds.config["threshold_dbm"]).any(axis=(1, 2))
+    np.testing.assert_array_equal(ds.valid, ds.outdoors & detected)
 
 
 def test_valid_means_detected(store):

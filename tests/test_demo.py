@@ -8,11 +8,13 @@ from collections import Counter
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
-from rrd_helpers import blueprint_count, check_blueprint, entity_rows
 
 from mmwsim.cli import main
 from mmwsim.demo import MODEL
 from mmwsim.trajectories import read_trajectories
+from tests.helpers.rrd import blueprint_count, check_blueprint, entity_rows
+
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -122,23 +124,6 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, words):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and words in err
     assert not (tmp_path / "out").exists()
-
-
-def test_free_points_snap_into_the_corridor_clear_of_buildings():
-    import planning
-    from mmwsim import load_scene
-    from mmwsim.demo import farthest_free_point, nearest_free_point
-
-    scene = load_scene("default")
-    corridor = planning.Corridor.from_array(np.array([[200.0, 150.0], [200.0, 100.0]]), 10.0)  # on the avenue
-    space = planning.FreeSpace(scene, radius=0.5, corridor=corridor)
-    np.testing.assert_array_equal(nearest_free_point(space, (201.0, 120.0)), (201.0, 120.0))
-    p = nearest_free_point(space, (150.0, 125.0))  # inside a building west of the avenue
-    assert space.exact_state_valid(*p) and space.in_corridor(*p)
-    assert 190.0 <= p[0] < 190.5 and p[1] == pytest.approx(125.0, abs=0.25)
-    q = farthest_free_point(space, (200.0, 150.0))
-    assert space.exact_state_valid(*q) and space.in_corridor(*q)
-    assert np.hypot(q[0] - 200.0, q[1] - 150.0) > 59.0  # the far end of the 50 m + 10 m corridor
 
 
 def test_importing_the_demo_loads_neither_torch_nor_ompl():

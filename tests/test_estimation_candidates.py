@@ -19,15 +19,15 @@ from estimation import (
     trajectory_rmse,
 )
 from estimation.evaluation import NetworkMethod
-from estimation.models.candidates import (
+from estimation.models import CandidateTransformer
+from estimation.smoothing.hmm import (
     STEP_SIGMAS,
-    CandidateTransformer,
     candidate_features,
     motion_posterior,
     subcell_mean,
     velocity_posterior,
 )
-from estimation.models.motion import MixtureMotion, MotionTable, snap_to_lattice
+from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice
 from estimation.synthetic import toy_sequence_set
 
 
@@ -217,7 +217,7 @@ def test_tn_match_needs_the_grid_and_tracks_only():
     with pytest.raises(EstimationError, match="attach"):
         est.predict(torch.zeros(1, 3, 4, 8))
     assert est.attach(d).predict(torch.zeros(1, 3, 4, 8)).shape == (1, 3, 2)
-    with pytest.raises(EstimationError, match="tracks only"):
+    with pytest.raises(EstimationError, match="for tracking only"):
         TrainConfig(model="tn-match", task="forecasting")
 
 

@@ -16,8 +16,9 @@ from estimation import (
     summarise_by_kind,
     trajectory_rmse,
 )
-from estimation.data import KINDS, fingerprint_bits
+from estimation.noise import fingerprint_bits
 from estimation.synthetic import toy_grid
+from mmwsim.trajectories import KINDS
 
 
 def test_trajectory_rmse_by_hand():

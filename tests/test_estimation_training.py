@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from rrd_helpers import check_blueprint, entity_rows
 
 from estimation import (
     CHECKPOINT_FORMAT,
@@ -16,13 +15,14 @@ from estimation import (
     EstimationError,
     Estimator,
     TrainConfig,
-    fingerprint_bits,
     load_checkpoint,
     train,
 )
+from estimation.noise import fingerprint_bits
 from estimation.synthetic import toy_sequence_set
 from mmwsim.cli import main
 from mmwsim.errors import MmwsimError
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 
 @pytest.fixture(autouse=True)

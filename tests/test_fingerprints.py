@@ -5,7 +5,7 @@ import pytest
 from scipy.stats import norm
 
 from mmwsim.errors import MmwsimError
-from mmwsim.fingerprints import FingerprintSampler, detection_probability, fingerprints
+from mmwsim.fingerprints import FingerprintSampler, NoiseModel
 
 OFFSETS = np.array([-20.0, -9.0, -3.0, 0.0, 2.0, 6.0, 12.0, 40.0])  # dB above the threshold
 
@@ -29,14 +29,14 @@ def test_fraction_of_ones_is_the_gaussian_tail(sigma):
     rng = np.random.default_rng(0)
     pdp = pdp_with_offsets()
     n_samples = 2000
-    bits = fingerprints(np.repeat(pdp, n_samples, axis=0), rng, sigma_db=sigma)
+    bits = NoiseModel(sigma).bits(np.repeat(pdp, n_samples, axis=0), rng)
     assert bits.shape == (n_samples, 8, 81) and bits.dtype == np.uint8
     check_tail(bits, sigma, n_samples * 81)
-    sampler = FingerprintSampler(pdp, sigma_db=sigma)
+    sampler = FingerprintSampler(pdp, NoiseModel(sigma))
     bits = sampler.sample(np.zeros(n_samples, np.int64), rng)
     assert bits.shape == (n_samples, 8, 81)
     check_tail(bits, sigma, n_samples * 81)
-    np.testing.assert_allclose(detection_probability(pdp[0, :, 1], sigma), norm.sf(-OFFSETS / sigma))
+    np.testing.assert_allclose(NoiseModel(sigma).probability(pdp[0, :, 1]), norm.sf(-OFFSETS / sigma))
 
 
 def test_empty_bins_never_fire_and_window_is_respected():
@@ -45,19 +45,19 @@ def test_empty_bins_never_fire_and_window_is_respected():
     pdp[:, :, 0] = 0.0  # strong, but outside the default window 1..81
     pdp[:, :, 82:] = 0.0
     for bits in (
-        fingerprints(np.repeat(pdp, 50, axis=0), rng),
+        NoiseModel().bits(np.repeat(pdp, 50, axis=0), rng),
         FingerprintSampler(pdp).sample([0] * 50, rng),
     ):
         assert bits.shape == (50, 8, 81)
         assert bits[:, 7].all()  # 40 dB above threshold: a sure one
     empty = np.full((1, 4, 120), -np.inf, np.float32)
-    assert not fingerprints(np.repeat(empty, 100, axis=0), rng).any()
+    assert not NoiseModel().bits(np.repeat(empty, 100, axis=0), rng).any()
     assert not FingerprintSampler(empty).sample(np.zeros(100, int), rng).any()
     # no noise: a plain threshold
-    b = fingerprints(pdp, rng, sigma_db=0.0)
+    b = NoiseModel(0.0).bits(pdp, rng)
     np.testing.assert_array_equal(b[0, :, 0], OFFSETS >= 0)
     np.testing.assert_array_equal(
-        FingerprintSampler(pdp, sigma_db=0.0).sample([0], rng)[0, :, 0], OFFSETS >= 0
+        FingerprintSampler(pdp, NoiseModel(0.0)).sample([0], rng)[0, :, 0], OFFSETS >= 0
     )
 
 
@@ -75,12 +75,36 @@ def test_sampler_is_fresh_deterministic_and_thread_independent():
     assert (first != second).any()  # fresh noise per use
     # per-entry frequency matches the detection probability
     many = sampler.sample(np.zeros(4000, np.int64), g).mean(axis=0)
-    p = detection_probability(pdp[0, :, 1:82])
+    p = NoiseModel().probability(pdp[0, :, 1:82])
     assert np.all(np.abs(many - p) <= 5 * np.sqrt(p * (1 - p) / 4000) + 1e-9)
 
 
 def test_bad_inputs():
     with pytest.raises(MmwsimError, match="bin window"):
-        fingerprints(np.zeros((1, 2, 50)), np.random.default_rng(0))
+        NoiseModel().bits(np.zeros((1, 2, 50)), np.random.default_rng(0))
     with pytest.raises(MmwsimError, match="out of range"):
         FingerprintSampler(np.zeros((3, 2, 120))).sample([3], np.random.default_rng(0))
+    with pytest.raises(MmwsimError, match="sigma"):
+        NoiseModel(-1.0)
+    with pytest.raises(MmwsimError, match="threshold"):
+        NoiseModel(6.0, float("nan"))
+
+
+def test_numpy_and_torch_back_ends_are_one_model():
+    """The torch back-end (estimation.noise) draws the bits and scores them like the numpy one."""
+    import torch
+
+    from estimation.noise import fingerprint_bits, log_detection_probabilities
+
+    model = NoiseModel(6.0, -115.0, (0, 81))
+    pdp = pdp_with_offsets()[0, :, 1:82]  # (8, 81)
+    log_p, log_q = log_detection_probabilities(
+        torch.from_numpy(pdp).double(), model.sigma_db, model.threshold_dbm
+    )
+    np.testing.assert_allclose(np.exp(log_p.numpy()), model.probability(pdp), rtol=1e-9, atol=1e-300)
+    np.testing.assert_allclose(np.exp(log_q.numpy()), 1 - model.probability(pdp), rtol=1e-9, atol=1e-12)
+    g = torch.Generator().manual_seed(0)
+    many = fingerprint_bits(
+        torch.from_numpy(np.repeat(pdp[None], 2000, 0)), model.sigma_db, model.threshold_dbm, g
+    )
+    check_tail(many.numpy(), model.sigma_db, 2000 * 81)

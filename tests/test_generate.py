@@ -10,11 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rrd_helpers import check_blueprint
 
 from mmwsim.cli import main
-from mmwsim.dataset import Dataset, generate
+from mmwsim.dataset import Dataset
+from mmwsim.dataset.generate import generate
 from mmwsim.dataset.store import MARKER, StoreWriter
+from tests.helpers.rrd import check_blueprint
 
 SMALL = dict(spacing=40.0, max_reflections=2, n_rays=100_000, tile_size=16, path_chunk=64, progress=False)
 
@@ -56,7 +57,7 @@ def test_interrupted_mid_tile_and_resumed_gives_same_bytes(tmp_path, monkeypatch
 def test_killed_process_resumes_to_same_bytes(tmp_path, reference):
     out = tmp_path / "d.zarr"
     code = (
-        "from mmwsim.dataset import generate; "
+        "from mmwsim.dataset.generate import generate; "
         f"generate('default', {str(out)!r}, spacing=40.0, max_reflections=2, n_rays=100_000, "
         "tile_size=16, path_chunk=64, progress=False)"
     )

@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scene_helpers import write_scene_folder
+from tests.helpers.scenes import write_scene_folder
 
 from mmwsim import faults
 from mmwsim.cli import main
-from mmwsim.dataset import generate
+from mmwsim.dataset import generate_dataset as generate
 from mmwsim.locks import OutputLock, lock_path
 from mmwsim.trajectories import read_trajectories
 

@@ -4,12 +4,12 @@ import warnings
 
 import numpy as np
 import pytest
-from scene_helpers import write_scene_folder
 
 from mmwsim import MaterialRangeWarning, MmwsimError, get_material, load_scene
 from mmwsim.constants import VACUUM_PERMITTIVITY
 from mmwsim.materials import ITU_MATERIALS, Material, canonical_name
 from scenes.layout import ground_mesh
+from tests.helpers.scenes import write_scene_folder
 
 F28 = 28e9
 

@@ -8,15 +8,14 @@ import math
 import numpy as np
 import pytest
 import shapely
-from rrd_helpers import check_blueprint, entity_rows
 
 import scenes
 from mmwsim.cli import EXIT_NO_SOLUTION, EXIT_USAGE, main
 from mmwsim.materials import get_material
 from mmwsim.scene import Scene, SceneObject
 from planning import (
+    AgentSpace,
     Corridor,
-    FreeSpace,
     PlanningError,
     load_corridor,
     plan,
@@ -25,6 +24,7 @@ from planning import (
 )
 from scenes.canonical import wall
 from scenes.layout import Building, building_mesh, ground_mesh
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 R = 0.5
 
@@ -44,13 +44,13 @@ def wall_scene() -> Scene:
 
 
 @pytest.fixture(scope="module")
-def walled() -> FreeSpace:
-    return FreeSpace(wall_scene(), radius=R, resolution=0.25)
+def walled() -> AgentSpace:
+    return AgentSpace(wall_scene(), radius=R, resolution=0.25)
 
 
 @pytest.fixture(scope="module")
-def open_space() -> FreeSpace:
-    return FreeSpace(scenes.free_space(), radius=R, resolution=0.5)
+def open_space() -> AgentSpace:
+    return AgentSpace(scenes.free_space(), radius=R, resolution=0.5)
 
 
 def detour_length(d_end: float, r: float) -> float:
@@ -99,7 +99,7 @@ def test_endpoint_errors(walled):
     with pytest.raises(PlanningError, match="unknown planner"):
         plan(walled, (-10.0, 0.0), (10.0, 0.0), planner="prm")
     corridor = Corridor.from_array(np.array([[-40.0, 30.0], [40.0, 30.0]]), 5.0)
-    space = FreeSpace(wall_scene(), corridor=corridor, resolution=0.5)
+    space = AgentSpace(wall_scene(), corridor=corridor, resolution=0.5)
     with pytest.raises(PlanningError, match="outside the corridor"):
         space.check_endpoint((-10.0, 0.0), "start")
 
@@ -120,7 +120,7 @@ def test_no_path_when_goal_is_walled_in():
     ring = [wall(*p, 5.0) for p in [(10, 10, 20, 10), (20, 10, 20, 20), (20, 20, 10, 20), (10, 20, 10, 10)]]
     objects = [SceneObject("ground", ground_mesh(0.0, 0.0, 40.0, 40.0), mat, "ground")]
     objects += [SceneObject(f"w{i}", m, mat, "other") for i, m in enumerate(ring)]
-    space = FreeSpace(Scene(objects, name="pen"), resolution=0.5)
+    space = AgentSpace(Scene(objects, name="pen"), resolution=0.5)
     assert shortest_path(space, (5.0, 5.0), (15.0, 15.0)) is None
     result = plan(space, (5.0, 5.0), (15.0, 15.0), planner="rrt", iterations=300, seed=1)
     assert not result.solved and result.length == math.inf and len(result.path) == 0
@@ -171,7 +171,7 @@ def test_corridor_respected_by_every_vertex_and_edge():
     # An L-shaped corridor: the straight line from start to goal leaves it.
     traj = np.array([[-40.0, 40.0], [-40.0, -40.0], [40.0, -40.0]])
     corridor = Corridor.from_array(traj, 4.0)
-    space = FreeSpace(scenes.free_space(), corridor=corridor, resolution=0.5)
+    space = AgentSpace(scenes.free_space(), corridor=corridor, resolution=0.5)
     s, g = (-40.0, 38.0), (38.0, -40.0)
     assert not corridor.covers_segment(s, g)
     opt = shortest_path(space, s, g)
@@ -261,3 +261,37 @@ def test_cli_errors_and_no_solution(scene_folder, tmp_path, capsys):
     assert status == EXIT_NO_SOLUTION
     assert "no solution: RRT found no path within 3 iterations" in capsys.readouterr().err
     assert json.loads(out.read_text())["solved"] is False
+
+
+def test_free_points_snap_into_the_corridor_clear_of_buildings():
+    scene = scenes.load("default")
+    corridor = Corridor.from_array(np.array([[200.0, 150.0], [200.0, 100.0]]), 10.0)  # on the avenue
+    space = AgentSpace(scene, radius=0.5, corridor=corridor)
+    np.testing.assert_array_equal(space.nearest_free_point((201.0, 120.0)), (201.0, 120.0))
+    p = space.nearest_free_point((150.0, 125.0))  # inside a building west of the avenue
+    assert space.exact_state_valid(*p) and space.in_corridor(*p)
+    assert 190.0 <= p[0] < 190.5 and p[1] == pytest.approx(125.0, abs=0.25)
+    q = space.farthest_free_point((200.0, 150.0))
+    assert space.exact_state_valid(*q) and space.in_corridor(*q)
+    assert np.hypot(q[0] - 200.0, q[1] - 150.0) > 59.0  # the far end of the 50 m + 10 m corridor
+
+
+def test_lift_decides_which_low_objects_block():
+    """The agent stands ``lift`` above the lowest point: a 0.5 m bench blocks it at the default
+    0.2 m lift (map and FCL alike) and is stepped over at 1 m, the wall stays an obstacle."""
+    mat = get_material("concrete")
+    bench = building_mesh([Building(10.0, -2.0, 14.0, 2.0, 0.5)])
+    scene = Scene(
+        [
+            SceneObject("ground", ground_mesh(-50.0, -50.0, 50.0, 50.0), mat, "ground"),
+            SceneObject("bench", bench, mat, "other"),
+            SceneObject("wall", wall(0.0, -20.0, 0.0, 20.0, 10.0), mat, "other"),
+        ],
+        name="bench",
+    )
+    low, high = AgentSpace(scene, radius=R), AgentSpace(scene, radius=R, lift=1.0)
+    assert low.z0 == pytest.approx(0.2) and high.z0 == pytest.approx(1.0)
+    assert not low.exact_state_valid(12.0, 0.0) and not low.state_valid(12.0, 0.0)
+    assert high.exact_state_valid(12.0, 0.0) and high.state_valid(12.0, 0.0)
+    assert not high.exact_motion_valid(-5.0, 0.0, 5.0, 0.0)  # the 10 m wall still blocks
+    assert len(high.obstacles) < len(low.obstacles)  # the bench left the 2D map

@@ -8,7 +8,6 @@ import pytest
 import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
-from rrd_helpers import check_blueprint, entity_rows, read_blueprint
 
 import scenes
 from mmwsim.antennas import RotatingHorn
@@ -27,6 +26,7 @@ from mmwsim.recording import (
 from mmwsim.scene import ReceiverGrid, load_scene
 from mmwsim.tracer import Interaction, Paths
 from mmwsim.tracer.record import RAY_CLASSES, log_diffuse_tiles, log_paths, log_wedges, path_classes
+from tests.helpers.rrd import check_blueprint, entity_rows, read_blueprint
 
 
 def _column(path, entity: str, component: str) -> list:

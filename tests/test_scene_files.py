@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from scene_helpers import two_buildings, write_scene_folder
 
 from mmwsim import MmwsimError, load_scene
 from scenes.layout import ground_mesh
+from tests.helpers.scenes import two_buildings, write_scene_folder
 
 
 def test_toml_scene_loads(scene_folder):

@@ -8,7 +8,8 @@ import pytest
 import scenes
 from mmwsim import Material, MmwsimError, Scene, SceneObject, Transmitter, get_material
 from mmwsim.constants import SPEED_OF_LIGHT
-from mmwsim.tracer import Paths, Tracer, fresnel, slab, trace
+from mmwsim.tracer import Paths, Tracer, slab, trace
+from mmwsim.tracer.fresnel import fresnel
 from scenes.layout import Building, building_mesh, ground_mesh
 
 LAM = SPEED_OF_LIGHT / 28e9

@@ -6,13 +6,13 @@ import json
 
 import numpy as np
 import pytest
-from rrd_helpers import check_blueprint, entity_rows
 
 import scenes
 from mmwsim import Entity
 from mmwsim.cli import main
 from mmwsim.constants import SPEED_OF_LIGHT
 from mmwsim.tracer import trace
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 
 def test_trace_cli_json_and_recording(tmp_path, capsys):

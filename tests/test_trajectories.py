@@ -8,18 +8,13 @@ import pytest
 import shapely
 
 import scenes
+from mmwsim.errors import MmwsimError
+from mmwsim.geometry import CoverageMask, FreeSpace
 from mmwsim.materials import get_material
 from mmwsim.scene import ReceiverGrid, Scene, SceneObject
-from mmwsim.trajectories import (
-    PEDESTRIAN,
-    VEHICLE,
-    CoverageMask,
-    FreeSpace,
-    MotionModel,
-    StreetNetwork,
-    TrajectoryError,
-    generate,
-)
+from mmwsim.trajectories import MotionModel, StreetNetwork, TrajectoryError
+from mmwsim.trajectories import generate_trajectories as generate
+from mmwsim.trajectories.motion import PEDESTRIAN, VEHICLE
 from scenes.layout import Building, building_mesh
 
 
@@ -205,5 +200,25 @@ def test_bad_generation_parameters(city):
 def test_empty_free_area():
     block = SceneObject("block", building_mesh([Building(-10, -10, 110, 110, 30)]), get_material("concrete"))
     scene = Scene([block], receivers=ReceiverGrid((0.0, 0.0), 1.0, (101, 101), 1.5), name="solid")
-    with pytest.raises(TrajectoryError, match="no free area"):
+    with pytest.raises(MmwsimError, match="no free area"):
         generate(scene, {"pedestrian": 5}, 7, seed=0)
+
+
+def test_users_and_the_planner_avoid_the_same_obstacles():
+    """One free space: a free-standing wall (kind "other") blocks users as it blocks the planner."""
+    from planning import AgentSpace
+
+    scene = scenes.load("ground_wall:distance=15")  # a wall in the plane x = 15, 30 m tall
+    strip = np.array([[5.0, -50.0], [25.0, 50.0]])  # 20 m around the wall: free walkers would cross it
+    fs = FreeSpace.from_scene(scene, bounds=strip)
+    assert fs.obstacles and all(g.geom_type == "LineString" for g in fs.obstacles)  # the wall's slab
+    crossing = fs.segments_ok(np.array([[10.0, 0.0], [10.0, 0.0]]), np.array([[20.0, 0.0], [12.0, 0.0]]))
+    assert crossing.tolist() == [False, True]
+    agent = AgentSpace(scene, radius=0.5)
+    assert all(g.equals(h) for g, h in zip(agent.obstacles, fs.obstacles, strict=True))
+    assert not agent.exact_motion_valid(10.0, 0.0, 20.0, 0.0) and agent.exact_motion_valid(
+        10.0, 0.0, 12.0, 0.0
+    )
+    t = generate(scene, {"pedestrian": 300}, 10, seed=3, free_space_bounds=strip)
+    steps = np.stack([t.positions[:, :-1], t.positions[:, 1:]], axis=2).reshape(-1, 2, 2)
+    assert not np.any((steps[:, 0, 0] - 15.0) * (steps[:, 1, 0] - 15.0) < 0)  # no step crosses x = 15

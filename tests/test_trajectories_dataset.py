@@ -9,20 +9,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rrd_helpers import check_blueprint, entity_rows
 
 import mmwsim.tracer
 from mmwsim.cli import main
 from mmwsim.dataset import Dataset
 from mmwsim.trajectories import (
     SPLITS,
-    GridPdp,
     SequenceLoader,
-    TracedPdp,
     TrajectoryError,
     list_splits,
+    read_trajectories,
     write_trajectories,
 )
+from tests.helpers.rrd import check_blueprint, entity_rows
 
 # 25 m grid over the default city, 2 reflections, few candidate rays: about a second to generate.
 GENERATE = [
@@ -73,8 +72,8 @@ def test_trajectories_land_in_the_dataset(made):
     store, rrd, before, _ = made
     assert tree_bytes(store, skip="trajectories") == before  # the data set itself is untouched
     ds = Dataset.open(store)
-    assert ds.trajectory_splits == list(SPLITS)
-    parts = {s: ds.trajectories(s) for s in SPLITS}
+    assert list_splits(ds) == list(SPLITS)
+    parts = {s: read_trajectories(ds, s) for s in SPLITS}
     assert sum(len(t) for t in parts.values()) == N
     assert np.array_equal(np.sort(np.concatenate([t.ids for t in parts.values()])), np.arange(N))
     scene = ds.scene()
@@ -134,8 +133,8 @@ def test_traced_pdp_reproduces_the_grid(made):
     ds = Dataset.open(made[0])
     idx = np.flatnonzero(ds.valid)[:6]
     xy = ds.positions[idx, :2]
-    traced = TracedPdp.from_dataset(ds).pdp_at(xy)
-    stored = GridPdp.from_dataset(ds).pdp_at(xy)
+    traced = ds.traced_field().pdp_at(xy)
+    stored = ds.field().pdp_at(xy)
     assert traced.shape == stored.shape == (6, 32, 81)
     fin = np.isfinite(stored)
     assert np.array_equal(fin, np.isfinite(traced))
@@ -153,13 +152,13 @@ def test_generate_resume_keeps_trajectories(made, capsys):
     assert main(["generate", "default", "--spacing", "30", "--out", str(store), "--resume", "--quiet"]) == 2
     assert "another configuration" in capsys.readouterr().err
     assert tree_bytes(store) == everything
-    assert Dataset.open(store).trajectories("test").positions.shape[1:] == (7, 2)
+    assert read_trajectories(Dataset.open(store), "test").positions.shape[1:] == (7, 2)
 
 
 def test_refusals(made, tmp_path, capsys):
     store = made[0]
     ds = Dataset.open(store)
-    t = ds.trajectories("train")
+    t = read_trajectories(ds, "train")
     t.attrs["dataset"] = "0" * 64
     with pytest.raises(TrajectoryError, match="generated for another data set"):
         write_trajectories(ds, {"train": t})

@@ -11,18 +11,13 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from mmwsim.fingerprints import detection_probability
+from mmwsim.constants import BINS as WINDOW
+from mmwsim.errors import MmwsimError
+from mmwsim.fingerprints import GridField, NoiseModel, TracedField
 from mmwsim.scene import ReceiverGrid
-from mmwsim.trajectories import (
-    FEATURE_BINS,
-    GridPdp,
-    SequenceLoader,
-    TracedPdp,
-    Trajectories,
-    TrajectoryError,
-    noisy_fingerprints,
-    pdp_sequences,
-)
+from mmwsim.trajectories import SequenceLoader, Trajectories, TrajectoryError, pdp_sequences
+
+FEATURE_BINS = slice(*WINDOW)
 
 GRID = ReceiverGrid((10.0, 20.0), 2.0, (21, 16), 1.5)
 BEAMS, BINS = 4, 120
@@ -45,8 +40,8 @@ def dataset():
     return SimpleNamespace(grid=GRID, pdp=pdp, valid=np.ones(GRID.size, dtype=bool))
 
 
-def grid_pdp(ds, **kw) -> GridPdp:
-    return GridPdp(ds.grid, ds.pdp, ds.valid, **kw)
+def grid_pdp(ds, **kw) -> GridField:
+    return GridField(ds.grid, ds.pdp, ds.valid, **kw)
 
 
 def _trajectories(rng, n=12, length=5) -> Trajectories:
@@ -94,7 +89,7 @@ def test_traced_pdp_at_continuous_positions(rng):
         heights.append(points[:, 2])
         return field(points[:, :2])
 
-    pdp = pdp_sequences(TracedPdp(trace, height=1.5, bins=FEATURE_BINS), t)
+    pdp = pdp_sequences(TracedField(trace, height=1.5, bins=FEATURE_BINS), t)
     assert np.allclose(pdp, field(t.positions)[..., 1:82], atol=1e-3)
     assert np.all(np.concatenate(heights) == 1.5)
 
@@ -103,10 +98,11 @@ def test_noise_statistics_match_closed_form(rng):
     threshold, sigma = -115.0, 6.0
     delta = np.array([-9.0, -3.0, 0.0, 4.0, 12.0, -np.inf])
     pdp = np.broadcast_to(threshold + delta, (20000, 6))
-    bits = noisy_fingerprints(pdp, sigma, threshold, rng)
+    bits = NoiseModel(sigma, threshold, (0, 6)).bits(pdp, rng)
     assert bits.dtype == np.uint8
     assert np.allclose(bits.mean(axis=0), norm.cdf(delta / sigma), atol=0.012)
-    assert np.array_equal(noisy_fingerprints(pdp[:1], 0.0, threshold, rng)[0], delta >= 0)
+    assert np.array_equal(NoiseModel(0.0, threshold, (0, 6)).bits(pdp[:1], rng)[0], delta >= 0)
+    np.testing.assert_allclose(NoiseModel(sigma, threshold).probability(pdp[0]), norm.cdf(delta / sigma))
 
 
 def test_loader_batches_fresh_noise_and_determinism(dataset, rng):
@@ -143,14 +139,14 @@ def test_fast_sampler_draws_the_gaussian_distribution(dataset, rng):
     source = grid_pdp(dataset, bins=FEATURE_BINS)
     pdp = source.pdp_at(t.positions)
     exact = SequenceLoader(source, t, batch_size=40, sigma_db=0.0, threshold_dbm=-100.0, shuffle=False)
-    assert exact.sampler is not None and exact.sampler.bins == (1, 82)
+    assert exact.sampler is not None and exact.sampler.noise.bins == (1, 82)
     bits = next(iter(exact))[0]
     assert np.array_equal(bits, (pdp >= -100.0).astype(np.float32))
     # one static user repeated: the fraction of ones per entry against Q((threshold - PDP) / sigma)
     static = Trajectories(
         np.full((3000, 3, 2), [30.0, 40.0]), np.zeros(3000), np.arange(3000), np.zeros((3000, 2))
     )
-    want = detection_probability(source.pdp_at(static.positions[:1, :1])[0, 0], 6.0, -100.0)
+    want = NoiseModel(6.0, -100.0).probability(source.pdp_at(static.positions[:1, :1])[0, 0])
     for fast in (True, False):
         loader = SequenceLoader(
             source, static, batch_size=3000, sigma_db=6.0, threshold_dbm=-100.0, fast=fast
@@ -166,10 +162,10 @@ def test_loader_bad_parameters(dataset, rng):
     t = _trajectories(rng)
     with pytest.raises(TrajectoryError, match="batch size"):
         SequenceLoader(grid_pdp(dataset), t, batch_size=0)
-    with pytest.raises(TrajectoryError, match="sigma"):
+    with pytest.raises(MmwsimError, match="sigma"):
         SequenceLoader(grid_pdp(dataset), t, sigma_db=-1.0)
-    with pytest.raises(TrajectoryError, match="does not fit"):
-        GridPdp(GRID, np.zeros((5, 2, 3)))
+    with pytest.raises(MmwsimError, match="does not fit"):
+        GridField(GRID, np.zeros((5, 2, 3)))
 
 
 def test_traced_pdp_from_scene_matches_grid_trace():
@@ -183,8 +179,29 @@ def test_traced_pdp_from_scene_matches_grid_trace():
     grid_pdp = power_delay_profile(
         trace(scene, n_rays=20000), make_codebook("rotating_horn", scene.frequency)
     )
-    source = TracedPdp.from_scene(scene, n_rays=20000)
+    source = TracedField.from_scene(scene, n_rays=20000)
     on_grid = scene.receivers.positions()[[3, 10, 50], :2]
-    assert np.array_equal(source.pdp_at(on_grid[None])[0], GridPdp(scene.receivers, grid_pdp).pdp_at(on_grid))
+    assert np.array_equal(
+        source.pdp_at(on_grid[None])[0], GridField(scene.receivers, grid_pdp).pdp_at(on_grid)
+    )
     off = on_grid + [1.3, 0.7]
-    assert not np.array_equal(source.pdp_at(off), GridPdp(scene.receivers, grid_pdp).pdp_at(off))
+    assert not np.array_equal(source.pdp_at(off), GridField(scene.receivers, grid_pdp).pdp_at(off))
+
+
+def test_traced_field_traces_at_its_receiver_height():
+    """The height a traced field is built for is the z of every traced point (not the grid's)."""
+    import scenes
+    from mmwsim.antennas import make_codebook
+    from mmwsim.fingerprints import power_delay_profile
+    from mmwsim.tracer import Tracer
+
+    scene = scenes.load("ground_only")
+    xy = np.array([[30.0, 0.0], [0.0, -45.0]])
+    high = TracedField.from_scene(scene, n_rays=20000, height=4.0).pdp_at(xy)
+    low = TracedField.from_scene(scene, n_rays=20000).pdp_at(xy)  # the grid's 1.5 m
+    book = make_codebook("rotating_horn", scene.frequency)
+    at4 = power_delay_profile(Tracer(scene, n_rays=20000).trace(np.column_stack([xy, [4.0, 4.0]])), book)
+    np.testing.assert_array_equal(high, at4)
+    # over ground the two-ray interference differs with the receiver height
+    fin = np.isfinite(high) & np.isfinite(low)
+    assert fin.any() and np.abs(high[fin] - low[fin]).max() > 0.5

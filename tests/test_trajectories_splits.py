@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 import shapely
 import trimesh
-from rrd_helpers import entity_rows
 
 import scenes
 from mmwsim.cli import main
 from mmwsim.trajectories import (
     SPLITS,
     TrajectoryError,
-    generate,
     list_splits,
     read_trajectories,
     split,
     write_trajectories,
 )
+from mmwsim.trajectories import generate_trajectories as generate
+from tests.helpers.rrd import entity_rows
 
 REGION = (250.0, 250.0, 350.0, 350.0)
 

@@ -1,53 +1,110 @@
-"""Trajectory-estimation networks: the transformer (``tn``) and the neural baselines.
+"""Trajectory-estimation networks and their registry.
 
-Every network maps fingerprint bits ``(B, T_in, M, N_s)`` to normalised positions ``(B, T_out, 2)``.
+A network maps fingerprint bits ``(B, T_in, M, N_s)`` to normalised positions ``(B, T_out, 2)``,
+or, if it reads the grid (``tn-match``), the smoothed match candidates of those bits. Each entry of
+:data:`MODELS` says how to build a network and what it needs, so that training, prediction and
+evaluation ask the registry instead of naming models.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
 from torch import nn
 
 from ..errors import EstimationError
-from .candidates import CandidateTransformer
+from ..names import MODEL_NAMES, TASKS, Loss, ModelName, Task
+from .candidate_transformer import CandidateTransformer
 from .conv import Conv1DNet, TCNNet
-from .motion import MixtureMotion, MotionTable
 from .recurrent import RecurrentNet
 from .transformer import TransformerNet
 
 __all__ = [
     "MODELS",
-    "CANDIDATE_MODELS",
     "CandidateTransformer",
-    "build_network",
-    "count_parameters",
-    "TransformerNet",
+    "Conv1DNet",
+    "ModelSpec",
     "RecurrentNet",
     "TCNNet",
-    "Conv1DNet",
-    "MixtureMotion",
-    "MotionTable",
+    "TransformerNet",
+    "build_network",
+    "count_parameters",
+    "model_spec",
 ]
 
-MODELS = ("tn", "tn-match", "lstm", "gru", "rnn", "tcn", "conv1d")
-CANDIDATE_MODELS = ("tn-match",)  # networks that choose among the grid's fingerprint-match candidates
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A trainable network of the registry.
+
+    Attributes
+    ----------
+    name : str
+    build : callable
+        ``build(n_beams, n_bins, task, horizon, dropout, **options) -> nn.Module``.
+    reads_grid : bool
+        The network chooses among the grid's fingerprint-match candidates, so it needs the data
+        set's grid attached (:meth:`~estimation.Estimator.attach`) and reads
+        :meth:`~estimation.Estimator.inputs` rather than the bits.
+    tasks : tuple of str
+        Tasks it can be trained for.
+    loss : str
+        Its default training loss.
+    """
+
+    name: ModelName
+    build: Callable[..., nn.Module]
+    reads_grid: bool = False
+    tasks: tuple[Task, ...] = TASKS
+    loss: Loss = "mse"
+
+
+def _sequence_net(cls: type[nn.Module], *args: Any) -> Callable[..., nn.Module]:
+    def build(n_beams: int, n_bins: int, task: Task, horizon: int, dropout: float, **options) -> nn.Module:
+        return cls(
+            *args, n_beams=n_beams, n_bins=n_bins, task=task, horizon=horizon, dropout=dropout, **options
+        )
+
+    return build
+
+
+def _candidate_net(
+    n_beams: int, n_bins: int, task: Task, horizon: int, dropout: float, **options
+) -> nn.Module:
+    return CandidateTransformer(dropout=dropout, **options)
+
+
+MODELS: dict[str, ModelSpec] = {
+    spec.name: spec
+    for spec in (
+        ModelSpec("tn", _sequence_net(TransformerNet)),
+        ModelSpec("tn-match", _candidate_net, reads_grid=True, tasks=("tracking",), loss="rmse"),
+        ModelSpec("lstm", _sequence_net(RecurrentNet, "lstm")),
+        ModelSpec("gru", _sequence_net(RecurrentNet, "gru")),
+        ModelSpec("rnn", _sequence_net(RecurrentNet, "rnn")),
+        ModelSpec("tcn", _sequence_net(TCNNet)),
+        ModelSpec("conv1d", _sequence_net(Conv1DNet)),
+    )
+}
+"""Every trainable network by name, in the order of :data:`estimation.names.MODEL_NAMES`."""
+assert tuple(MODELS) == MODEL_NAMES, "the registry and the torch-free list of names differ"
+
+
+def model_spec(name: str) -> ModelSpec:
+    """The registry entry of ``name``, or a one-line :class:`EstimationError`."""
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise EstimationError(f"unknown model {name!r} (choose from {', '.join(MODELS)})") from None
 
 
 def build_network(
-    name: str, n_beams: int, n_bins: int, task: str, horizon: int, dropout: float = 0.01, **options
+    name: str, n_beams: int, n_bins: int, task: Task, horizon: int, dropout: float = 0.01, **options
 ) -> nn.Module:
     """The network ``name`` (one of :data:`MODELS`); ``options`` are passed to its constructor."""
-    common = dict(n_beams=n_beams, n_bins=n_bins, task=task, horizon=horizon, dropout=dropout, **options)
-    if name == "tn":
-        return TransformerNet(**common)
-    if name == "tn-match":  # tracking only: TrainConfig refuses another task
-        return CandidateTransformer(dropout=dropout, **options)
-    if name in ("lstm", "gru", "rnn"):
-        return RecurrentNet(name, **common)
-    if name == "tcn":
-        return TCNNet(**common)
-    if name == "conv1d":
-        return Conv1DNet(**common)
-    raise EstimationError(f"unknown model {name!r} (choose from {', '.join(MODELS)})")
+    return model_spec(name).build(n_beams, n_bins, task, horizon, dropout, **options)
 
 
 def count_parameters(net: nn.Module) -> int:

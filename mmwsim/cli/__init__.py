@@ -42,7 +42,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .. import __version__
+    from ..version import __version__
 
     parser = _Parser(prog="mmwsim", description="28 GHz mmWave simulation over 3D city meshes.")
     parser.add_argument("--version", action="version", version=f"mmwsim {__version__}")

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from estimation.names import CLASSICAL_NAMES, TASKS
+
+from ..constants import SIGMA_DB
+
 EPILOG = """\
 Each RUN is a folder written by `mmwsim train`, or the name of a classical tracker that needs no
 training: knn-kalman (the paper's baseline: nearest-fingerprint matching on the data-set grid plus a
@@ -31,10 +35,16 @@ def register(sub) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("runs", nargs="+", metavar="RUN", help="run folder, knn-kalman or match-cv")
+    p.add_argument(
+        "runs", nargs="+", metavar="RUN", help=f"run folder, or one of {', '.join(CLASSICAL_NAMES)}"
+    )
     p.add_argument("--dataset", help="data set (or toy spec) to evaluate on (default: the first run's)")
     p.add_argument(
-        "--noise", type=float, nargs="+", default=[6.0, 9.0], help="noise levels, dB (default 6 9)"
+        "--noise",
+        type=float,
+        nargs="+",
+        default=[SIGMA_DB, 9.0],
+        help=f"noise levels, dB (default {SIGMA_DB:g} 9)",
     )
     p.add_argument(
         "--split",
@@ -55,7 +65,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--task",
-        choices=("tracking", "forecasting"),
+        choices=TASKS,
         default="tracking",
         help="task of the knn-kalman baseline (networks use their own; default tracking)",
     )
@@ -76,7 +86,7 @@ def _evaluate(args) -> int:
 
     from estimation import EstimationError
 
-    from ..files import check_output_folder
+    from ..files import RECORDING_SUFFIX, check_output_folder, check_suffix
     from ..locks import locked_output
     from . import check_threads
 
@@ -89,10 +99,10 @@ def _evaluate(args) -> int:
         raise EstimationError(f"--lengths {' '.join(map(str, args.lengths))}: sequence lengths must be >= 1")
     if args.table_length < 1 or args.max_trajectories < 0 or args.t_obs < 1 or args.horizon < 1:
         raise EstimationError("--table-length, --t-obs and --horizon must be >= 1, --max-trajectories >= 0")
-    if args.rrd and not args.rrd.endswith(".rrd"):
-        raise EstimationError(f"--rrd {args.rrd}: a recording must end in .rrd")
-    if args.rrd and Path(args.rrd).parent != Path(args.out):  # the report folder is made later
-        check_output_folder(args.rrd, "--rrd")
+    if args.rrd:
+        check_suffix(args.rrd, RECORDING_SUFFIX, "--rrd")
+        if Path(args.rrd).parent != Path(args.out):  # the report folder is made later
+            check_output_folder(args.rrd, "--rrd")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise EstimationError(f"--out {out}: exists and is not a folder")
@@ -103,47 +113,14 @@ def _evaluate(args) -> int:
 def _run(args, out) -> int:
     from pathlib import Path
 
-    from estimation import (
-        EstimationError,
-        Estimator,
-        KnnKalmanMethod,
-        MatchSmootherMethod,
-        NetworkMethod,
-        evaluate,
-        read_run_info,
-        record_trajectories,
-        write_report,
-    )
+    from estimation import EstimationError, NetworkMethod, evaluate, method, record_estimates, write_report
     from estimation.adapter import load_sets, scene_footprints
 
-    methods, dataset = [], args.dataset
-    for run in args.runs:
-        if run == "knn-kalman":
-            methods.append(
-                KnnKalmanMethod(args.task, args.t_obs, args.horizon, args.table_length, seed=args.seed)
-            )
-            continue
-        if run == "match-cv":
-            methods.append(MatchSmootherMethod())
-            continue
-        if not Path(run).is_dir():
-            raise EstimationError(f"{run}: not a run folder (nor knn-kalman or match-cv)")
-        info = read_run_info(run)
-        est = Estimator.load(run)
-        summary = info.get("summary", {})
-        seconds, epochs = summary.get("train_seconds", float("nan")), summary.get("epochs", 0)
-        trained_on = info.get("data", {}).get("dataset")
-        if (
-            isinstance(seconds, bool)
-            or not isinstance(seconds, (int, float))
-            or isinstance(epochs, bool)
-            or not isinstance(epochs, int)
-            or not isinstance(trained_on, (str, type(None)))
-        ):
-            raise EstimationError(f"{run}: run.json has a malformed summary or data description")
-        name = Path(run).resolve().name  # the folder name labels the run in tables and recordings
-        methods.append(NetworkMethod(est, name, float(seconds), epochs))
-        dataset = dataset or trained_on
+    classical = dict(
+        task=args.task, t_obs=args.t_obs, horizon=args.horizon, fit_length=args.table_length, seed=args.seed
+    )
+    methods = [method(run, **classical) for run in args.runs]
+    dataset = args.dataset or next((m.dataset for m in methods if getattr(m, "dataset", None)), None)
     if not dataset:
         raise EstimationError("no data set: give --dataset (needed when only classical trackers are named)")
     names = tuple(dict.fromkeys([*args.split, args.val_split]))
@@ -168,7 +145,7 @@ def _run(args, out) -> int:
     )
     written = write_report(ev, out, list(args.noise))
     if args.rrd:
-        record_trajectories(ev, args.rrd, footprints=scene_footprints(dataset))
+        record_estimates(ev, args.rrd, footprints=scene_footprints(dataset))
         written.append(Path(args.rrd))
     print((out / "accuracy.md").read_text())
     print((out / "cost.md").read_text())

@@ -53,7 +53,8 @@ def _default_out(scene: str) -> str:
 def _generate(args) -> int:
     import time
 
-    from ..dataset import Dataset, generate
+    from ..dataset import Dataset
+    from ..dataset.generate import generate
     from . import parse_vector
 
     scene = scene_spec(args)

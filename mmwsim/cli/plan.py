@@ -8,8 +8,10 @@ import os
 import sys
 from pathlib import Path
 
+from planning.names import PLANNER_NAMES
+
 from ..errors import MmwsimError
-from ..files import write_text_atomic
+from ..files import check_suffix, write_text_atomic
 from .osm_area import add_area_arguments, scene_spec
 
 _EPILOG = """\
@@ -40,7 +42,7 @@ def register(sub) -> None:
     p.add_argument(
         "--planner",
         default="irrtstar",
-        choices=["rrt", "rrtstar", "irrtstar", "bitstar", "aorrtc"],
+        choices=PLANNER_NAMES,
         help="planner (default irrtstar: Informed RRT*)",
     )
     budget = p.add_mutually_exclusive_group()
@@ -64,9 +66,7 @@ def register(sub) -> None:
 
 
 def _writable(path: str, suffix: str, what: str) -> Path:
-    out = Path(path)
-    if out.suffix.lower() != suffix:
-        raise MmwsimError(f"{out}: {what} must end in {suffix}")
+    out = check_suffix(path, suffix, what)
     if not out.parent.is_dir() or not os.access(out.parent, os.W_OK):
         raise MmwsimError(f"{out}: folder {out.parent} does not exist or is not writable")
     return out
@@ -101,7 +101,7 @@ def _plan(args) -> int:
 
     scene = load_scene(scene_spec(args))
     corridor = planning.load_corridor(args.corridor, args.corridor_width) if args.corridor else None
-    space = planning.FreeSpace(scene, radius=args.radius, corridor=corridor, resolution=args.resolution)
+    space = planning.AgentSpace(scene, radius=args.radius, corridor=corridor, resolution=args.resolution)
     result = planning.plan(
         space,
         start,

@@ -78,8 +78,8 @@ def _record(args) -> int:
 
 
 def _list(args) -> int:
-    import scenes
+    from ..scene.catalogue import scene_names
 
-    for name in scenes.names():
+    for name in scene_names():
         print(name)
     return 0

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MmwsimError
-from ..files import write_text_atomic
+from ..files import check_suffix, write_text_atomic
 from .osm_area import add_area_arguments, scene_spec
 
 _TABLE_LIMIT = 20  # receivers printed in full; more get a summary
@@ -99,9 +99,7 @@ def _run(args) -> int:
         raise MmwsimError(f"--max-reflections must be from 0 to 6, got {args.max_reflections}")
     for flag, target, suffix in (("--json", args.json, ".json"), ("--rrd", args.rrd, ".rrd")):
         if target:
-            t = Path(target)
-            if t.suffix != suffix:
-                raise MmwsimError(f"{flag} {t}: must end in {suffix}")
+            t = check_suffix(target, suffix, flag)
             if not t.parent.is_dir() or not os.access(t.parent, os.W_OK):
                 raise MmwsimError(f"{flag} {t}: folder {t.parent} does not exist or is not writable")
     scene = load_scene(scene_spec(args))

@@ -4,15 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-MODELS = (
-    "tn",
-    "tn-match",
-    "lstm",
-    "gru",
-    "rnn",
-    "tcn",
-    "conv1d",
-)  # mirrors estimation.MODELS without importing torch
+from estimation.names import LOSSES, MODEL_NAMES, TASKS
+
+from ..constants import SIGMA_DB
 
 EPILOG = """\
 The run folder RUN receives run.json (settings and data description), checkpoint.pt (after every
@@ -26,13 +20,13 @@ toy[:n=N,length=L,seed=S] for a small synthetic one.
 def register(sub) -> None:
     p = sub.add_parser(
         "train",
-        help="train a trajectory-estimation network (tn, tn-match, lstm, gru, rnn, tcn, conv1d)",
+        help=f"train a trajectory-estimation network ({', '.join(MODEL_NAMES)})",
         description=__doc__,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("dataset", help="data set (zarr store with trajectories) or toy[:n=N,length=L,seed=S]")
-    p.add_argument("--model", required=True, choices=MODELS, help="network to train")
+    p.add_argument("--model", required=True, choices=MODEL_NAMES, help="network to train")
     p.add_argument("--out", required=True, help="run folder to write")
     p.add_argument(
         "--epochs", type=int, default=100, help="maximum epochs (default 100; early stopping may end sooner)"
@@ -41,8 +35,8 @@ def register(sub) -> None:
     p.add_argument(
         "--seed", type=int, default=0, help="seed of initialisation, order, crops and noise (default 0)"
     )
-    p.add_argument("--task", choices=("tracking", "forecasting"), default="tracking")
-    p.add_argument("--sigma", type=float, default=6.0, help="training noise, dB (default 6)")
+    p.add_argument("--task", choices=TASKS, default="tracking")
+    p.add_argument("--sigma", type=float, default=SIGMA_DB, help=f"training noise, dB (default {SIGMA_DB:g})")
     p.add_argument("--min-length", type=int, default=2, help="tracking: shortest training crop (default 2)")
     p.add_argument(
         "--max-length",
@@ -69,7 +63,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--loss",
-        choices=("mse", "rmse"),
+        choices=LOSSES,
         default="",
         help="mse (the paper's) or rmse (mean per-trajectory RMSE); default rmse for tn-match, else mse",
     )

@@ -107,10 +107,11 @@ def _open(args):
 
 
 def _run(args) -> int:
-    from ..files import check_output_folder, writing
+    from ..files import RECORDING_SUFFIX, check_output_folder, check_suffix, writing
     from ..locks import OutputLock
     from ..recording import Recording
-    from ..trajectories import generate, generate_for_dataset, log_trajectories, split, write_trajectories
+    from ..trajectories import generate_for_dataset, log_trajectories, split, write_trajectories
+    from ..trajectories.generate import generate
     from ..trajectories.splits import check_fractions, check_region
     from . import parse_vector
 
@@ -125,8 +126,7 @@ def _run(args) -> int:
         else None
     )
     if args.rrd:
-        if not args.rrd.endswith(".rrd"):
-            raise MmwsimError(f"{args.rrd}: a recording must end in .rrd")
+        check_suffix(args.rrd, RECORDING_SUFFIX, "--rrd")
         check_output_folder(args.rrd, "--rrd")
     if args.show < 0:
         raise MmwsimError(f"--show must be >= 0, got {args.show}")

@@ -1,20 +1,15 @@
 """The data set: zarr v3 store of receiver grid, per-beam PDPs and paths; its generation."""
 
-from .config import CodebookConfig, GenerateConfig, resolve_config
-from .generate import generate, run_tiles
+from .config import CodebookConfig, GenerateConfig
+from .generate import generate as generate_dataset
 from .record import log_dataset, record_dataset
 from .store import Dataset
-from .tiles import TileResult, compute_tile
 
 __all__ = [
     "CodebookConfig",
     "Dataset",
     "GenerateConfig",
-    "TileResult",
-    "compute_tile",
-    "generate",
+    "generate_dataset",
     "log_dataset",
     "record_dataset",
-    "resolve_config",
-    "run_tiles",
 ]

@@ -9,8 +9,8 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ..config import Int2, StrictModel, Vec2, Vec3, content_hash, validate
+from ..constants import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
 from ..errors import MmwsimError
-from ..fingerprints import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
 from ..limits import check_fits
 
 __all__ = ["CodebookConfig", "GenerateConfig", "check_tile_memory", "resolve_config", "scene_fingerprint"]

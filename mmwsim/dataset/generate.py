@@ -8,7 +8,7 @@ from contextlib import closing
 from pathlib import Path
 
 from ..errors import MmwsimError
-from ..files import check_output_folder
+from ..files import RECORDING_SUFFIX, check_output_folder, check_suffix
 from ..stages import STAGES
 from .config import (
     DEFAULT_PATH_CHUNK,
@@ -87,8 +87,7 @@ def generate(
         raise MmwsimError(f"--workers must be at least 1, got {workers}")
     out = Path(out)
     if rrd is not None:
-        if Path(rrd).suffix != ".rrd":
-            raise MmwsimError(f"{rrd}: a recording must end in .rrd")
+        check_suffix(rrd, RECORDING_SUFFIX, "--rrd")
         check_output_folder(rrd, "--rrd")
     scene_obj = load_scene(scene, transmitter=transmitter)
     cfg = resolve_config(

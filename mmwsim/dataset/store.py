@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import astuple
 from pathlib import Path
 
 import numpy as np
@@ -43,12 +44,14 @@ from zarr.codecs import ZstdCodec
 from ..errors import MmwsimError
 from ..faults import fault
 from ..files import reading, remove_tree, write_error, writing
+from ..fingerprints import FingerprintSampler, GridField, NoiseModel, TracedField, receive_pattern
+from ..fingerprints.field import Lookup
 from ..locks import OutputLock
 from ..scene import ReceiverGrid
 from ..tracer.paths import Paths
 from .config import GenerateConfig
 
-__all__ = ["FORMAT", "Dataset", "StoreWriter", "nearest_index", "partial_path"]
+__all__ = ["FORMAT", "Dataset", "StoreWriter", "partial_path"]
 
 FORMAT = "mmwsim-dataset"
 FORMAT_VERSION = 2
@@ -101,6 +104,7 @@ class StoreWriter:
     """
 
     def __init__(self, out: Path, cfg: GenerateConfig, n_beams: int, resume: bool):
+
         self.out, self.cfg, self.n_beams = Path(out), cfg, int(n_beams)
         self.tmp = partial_path(self.out)
         self.hash = cfg.hash()
@@ -117,7 +121,7 @@ class StoreWriter:
             raise
 
     def _open(self, resume: bool) -> None:
-        from .. import __version__
+        from ..version import __version__
 
         if self.out.exists():
             other = _stored_hash(self.out)
@@ -326,25 +330,6 @@ class StoreWriter:
         remove_tree(self.tmp)
 
 
-def nearest_index(grid: ReceiverGrid, xy: np.ndarray) -> np.ndarray:
-    """Flat index (ix + nx iy) of the grid point nearest to each position.
-
-    Parameters
-    ----------
-    grid : ReceiverGrid
-    xy : (..., 2) or (..., 3) float
-        Positions, metres (z ignored); points off the grid snap to its edge.
-
-    Returns
-    -------
-    (...) int64
-    """
-    p = np.asarray(xy, dtype=np.float64)
-    ix = np.clip(np.rint((p[..., 0] - grid.origin[0]) / grid.spacing), 0, grid.shape[0] - 1).astype(np.int64)
-    iy = np.clip(np.rint((p[..., 1] - grid.origin[1]) / grid.spacing), 0, grid.shape[1] - 1).astype(np.int64)
-    return ix + grid.shape[0] * iy
-
-
 def _stored_hash(path: Path) -> str | None:
     try:
         meta = json.loads((Path(path) / "zarr.json").read_text())
@@ -461,18 +446,9 @@ class Dataset:
 
     # ------------------------------------------------------------------ lookups
     def nearest(self, xy: np.ndarray) -> np.ndarray:
-        """Index of the grid point nearest to each position.
-
-        Parameters
-        ----------
-        xy : (..., 2) or (..., 3) float
-            Positions, metres (z ignored); points off the grid snap to its edge.
-
-        Returns
-        -------
-        (...) int64
-        """
-        return nearest_index(self.grid, xy)
+        """(...) int64 index of the grid point nearest to each (..., 2) or (..., 3) position, metres
+        (:meth:`ReceiverGrid.nearest_index <mmwsim.scene.ReceiverGrid.nearest_index>`)."""
+        return self.grid.nearest_index(xy)
 
     def paths(self, index: np.ndarray | int) -> Paths:
         """The stored paths of receivers ``index`` (re-traced nothing), as :class:`Paths`.
@@ -507,38 +483,75 @@ class Dataset:
             types=cols.get("types"),
         )
 
-    # ------------------------------------------------------------------ scene and trajectories
+    # ------------------------------------------------------------------ scene
     def scene(self, spec: str | None = None):
         """The scene the data set was generated from, with its transmitter (see
         :meth:`GenerateConfig.load_scene`; ``spec`` loads it from elsewhere, checked to be the same)."""
         return GenerateConfig.model_validate(self.config).load_scene(spec)
 
-    @property
-    def trajectory_splits(self) -> list[str]:
-        """Names of the trajectory splits stored in the data set (empty if none)."""
-        from ..trajectories.store import list_splits
-
-        return list_splits(self.path)
-
-    def trajectories(self, split: str):
-        """The stored trajectory split ``split`` as :class:`mmwsim.trajectories.Trajectories`."""
-        from ..trajectories.store import read_trajectories
-
-        return read_trajectories(self.path, split)
-
     # ------------------------------------------------------------------ fingerprints
-    def sampler(self, sigma_db: float | None = None, threshold_dbm: float | None = None, bins=None):
-        """A :class:`~mmwsim.fingerprints.FingerprintSampler` over all receivers (built once, cached)."""
-        from ..fingerprints import FingerprintSampler
-
-        key = (
+    def noise(
+        self, sigma_db: float | None = None, threshold_dbm: float | None = None, bins=None
+    ) -> NoiseModel:
+        """The fingerprint noise model of the data set's config, with any of its values replaced."""
+        return NoiseModel(
             self.config["sigma_db"] if sigma_db is None else float(sigma_db),
             self.config["threshold_dbm"] if threshold_dbm is None else float(threshold_dbm),
             tuple(self.config["bins"] if bins is None else bins),
         )
-        if key not in self._samplers:
-            self._samplers[key] = FingerprintSampler(self.pdp, *key)
-        return self._samplers[key]
+
+    def sampler(self, sigma_db: float | None = None, threshold_dbm: float | None = None, bins=None):
+        """A :class:`~mmwsim.fingerprints.FingerprintSampler` over all receivers (built once per
+        :meth:`noise` model, cached)."""
+        noise = self.noise(sigma_db, threshold_dbm, bins)
+        if noise not in self._samplers:
+            self._samplers[noise] = FingerprintSampler(self.pdp, noise)
+        return self._samplers[noise]
+
+    def field(self, method: Lookup = "nearest", bins: slice | None = None) -> GridField:
+        """The data set's PDPs as a fingerprint field over its grid (read lazily from the store).
+
+        Parameters
+        ----------
+        method : {"nearest", "linear"}
+        bins : slice, optional
+            Default: the fingerprint window (``config["bins"]``, bins 1..81).
+        """
+        bins = slice(*self.config["bins"]) if bins is None else bins
+        return GridField(
+            self.grid, self.pdp, self.valid, method, bins, sampler=lambda n: self.sampler(*astuple(n))
+        )
+
+    def traced_field(self, bins: slice | None = None, scene=None) -> TracedField:
+        """A fingerprint field traced exactly with the data set's own configuration.
+
+        Scene and transmitter, reflections, candidate rays, codebook, receive gain, transmit
+        power, sampling and receiver height are the ones the data set was generated with, so at
+        grid points it gives the stored PDPs (before their float16 rounding).
+
+        Parameters
+        ----------
+        bins : slice, optional
+            Default: the fingerprint window.
+        scene : Scene, optional
+            The data set's scene if already loaded.
+        """
+        from .tiles import make_codebook_from
+
+        cfg = GenerateConfig.model_validate(self.config)
+        return TracedField.from_scene(
+            self.scene() if scene is None else scene,
+            make_codebook_from(cfg),
+            cfg.max_reflections,
+            cfg.n_rays,
+            slice(*cfg.bins) if bins is None else bins,
+            height=cfg.grid_height,
+            rx_pattern=receive_pattern(cfg.rx_gain_dbi),
+            tx_power_dbm=cfg.tx_power_dbm,
+            sample_rate=cfg.sample_rate,
+            n_bins=cfg.n_bins,
+            band_limited=cfg.band_limited,
+        )
 
     def fingerprints(
         self,

@@ -1,30 +1,18 @@
-"""Power-delay profiles (PDP) and beamformed fingerprints (BFF)."""
+"""Power-delay profiles (PDP), the fingerprint field over positions, and beamformed fingerprints (BFF)
+drawn from them under the one noise model."""
 
-from .bits import BINS, SIGMA_DB, THRESHOLD_DBM, FingerprintSampler, detection_probability, fingerprints
-from .pdp import (
-    N_BINS,
-    RX_GAIN_DBI,
-    SAMPLE_RATE,
-    TX_POWER_DBM,
-    beam_amplitudes,
-    channel_taps,
-    power_delay_profile,
-    receive_pattern,
-)
+from .field import FingerprintField, GridField, TracedField
+from .noise import FingerprintSampler, NoiseModel
+from .pdp import beam_amplitudes, channel_taps, power_delay_profile, receive_pattern
 
 __all__ = [
-    "BINS",
-    "N_BINS",
-    "RX_GAIN_DBI",
-    "SAMPLE_RATE",
-    "SIGMA_DB",
-    "THRESHOLD_DBM",
-    "TX_POWER_DBM",
+    "FingerprintField",
     "FingerprintSampler",
+    "GridField",
+    "NoiseModel",
+    "TracedField",
     "beam_amplitudes",
     "channel_taps",
-    "detection_probability",
-    "fingerprints",
     "power_delay_profile",
     "receive_pattern",
 ]

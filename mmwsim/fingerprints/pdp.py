@@ -19,6 +19,7 @@ import numpy as np
 from .._jit import njit
 from ..antennas import Codebook, Isotropic, Pattern
 from ..antennas.spherical import spherical_basis
+from ..constants import N_BINS, RX_GAIN_DBI, SAMPLE_RATE, TX_POWER_DBM
 from ..errors import MmwsimError
 from ..tracer.paths import PathKind, Paths
 
@@ -33,12 +34,6 @@ __all__ = [
     "power_delay_profile",
 ]
 
-SAMPLE_RATE = 20e6
-"""Hz: 50 ns bins."""
-N_BINS = 120
-"""Bins per profile: 6 us at 20 MHz."""
-TX_POWER_DBM = 30.0
-RX_GAIN_DBI = 10.0
 SINC_TAPS = 16
 """Bins either side of a path that a band-limited path contributes to (sinc^2 tail below -40 dB)."""
 

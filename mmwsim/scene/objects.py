@@ -122,6 +122,27 @@ class ReceiverGrid:
         gx, gy = np.meshgrid(self.xs, self.ys, indexing="xy")
         return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, float(self.height))])
 
+    def nearest_index(self, xy: np.ndarray) -> np.ndarray:
+        """Flat index (ix + nx iy) of the grid point nearest to each position.
+
+        Parameters
+        ----------
+        xy : (..., 2) or (..., 3) float
+            Positions, metres (z ignored); points off the grid snap to its edge.
+
+        Returns
+        -------
+        (...) int64
+        """
+        p = np.asarray(xy, dtype=np.float64)
+        ix = np.clip(np.rint((p[..., 0] - self.origin[0]) / self.spacing), 0, self.shape[0] - 1).astype(
+            np.int64
+        )
+        iy = np.clip(np.rint((p[..., 1] - self.origin[1]) / self.spacing), 0, self.shape[1] - 1).astype(
+            np.int64
+        )
+        return ix + self.shape[0] * iy
+
     def with_spacing(self, spacing: float) -> ReceiverGrid:
         """The same area covered at another spacing (the far edge kept where it falls on the grid)."""
         if not (math.isfinite(spacing) and spacing > 0):

@@ -1,6 +1,6 @@
 """Exact ray tracing: line of sight, reflections, edge diffraction (Embree candidates, exact geometry)."""
 
-from .fresnel import Surface, fresnel, slab
+from .fresnel import Surface, slab
 from .paths import POLARISATIONS, Interaction, PathKind, Paths
 from .reflectors import Reflectors, group_reflectors
 from .tracer import DEFAULT_RAYS, MIN_GAIN_DB, Tracer, trace
@@ -15,7 +15,6 @@ __all__ = [
     "Reflectors",
     "Surface",
     "Tracer",
-    "fresnel",
     "group_reflectors",
     "slab",
     "trace",

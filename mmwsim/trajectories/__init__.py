@@ -10,57 +10,42 @@ Typical use, with a data set made by ``mmwsim generate``::
     write_trajectories(ds, split(t, holdout_region=(250, 250, 350, 350)))
     for bits, positions in SequenceLoader.from_dataset(ds, "train", batch_size=64):
         ...  # bits (64, 7, 32, 81) with fresh noise, positions (64, 7, 2)
+
+Users move in the scene's free space (:class:`mmwsim.geometry.FreeSpace`), the same the planner
+plans in.
 """
 
 from .errors import TrajectoryError
-from .fingerprints import (
-    FEATURE_BINS,
-    GridPdp,
-    SequenceLoader,
-    TracedPdp,
-    noisy_fingerprints,
-    pdp_sequences,
-)
-from .freespace import CoverageMask, FreeSpace, nearest_grid_index
-from .generate import MAX_LENGTH, MIN_LENGTH, check_length, generate, generate_for_dataset, generate_kind
-from .motion import EVENT_NAMES, HYBRID, KINDS, MODELS, PEDESTRIAN, STATIC, VEHICLE, MotionModel, motion_model
+from .generate import MAX_LENGTH, MIN_LENGTH, generate_for_dataset, generate_kind
+from .generate import generate as generate_trajectories
+from .motion import EVENT_NAMES, KINDS, MOTION_MODELS, Kind, MotionModel, motion_model
 from .record import log_trajectories
+from .sequences import SequenceLoader, pdp_sequences
 from .splits import SPLITS, split, touches_region
 from .store import is_trajectory_store, list_splits, read_trajectories, write_trajectories
 from .streets import StreetNetwork
 from .trajectories import Trajectories
 
 __all__ = [
-    "CoverageMask",
     "EVENT_NAMES",
-    "FEATURE_BINS",
-    "FreeSpace",
-    "GridPdp",
-    "HYBRID",
     "KINDS",
     "MAX_LENGTH",
     "MIN_LENGTH",
-    "MODELS",
+    "MOTION_MODELS",
+    "Kind",
     "MotionModel",
-    "PEDESTRIAN",
     "SPLITS",
-    "STATIC",
     "SequenceLoader",
     "StreetNetwork",
-    "TracedPdp",
     "TrajectoryError",
     "Trajectories",
-    "VEHICLE",
-    "check_length",
-    "generate",
     "generate_for_dataset",
     "generate_kind",
+    "generate_trajectories",
     "is_trajectory_store",
     "list_splits",
     "log_trajectories",
     "motion_model",
-    "nearest_grid_index",
-    "noisy_fingerprints",
     "pdp_sequences",
     "read_trajectories",
     "split",

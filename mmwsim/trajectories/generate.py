@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..geometry.freespace import CoverageMask, FreeSpace, scene_obstacles
 from ..limits import check_fits
 from .errors import TrajectoryError
-from .freespace import CoverageMask, FreeSpace
-from .motion import AVOID, KINDS, MODELS, NONE, ROAD, SPEED, STOP, TURN, MotionModel, motion_model
+from .motion import AVOID, KINDS, MOTION_MODELS, NONE, ROAD, SPEED, STOP, TURN, MotionModel, motion_model
 from .streets import StreetNetwork
 from .trajectories import Trajectories
 
@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from ..dataset import Dataset
     from ..scene import Scene
 
-__all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_for_dataset", "generate_kind", "check_length"]
+__all__ = ["MIN_LENGTH", "MAX_LENGTH", "generate", "generate_for_dataset", "generate_kind"]
 
 MIN_LENGTH = 3
 MAX_LENGTH = 30
@@ -168,7 +168,7 @@ def generate_kind(
     Parameters
     ----------
     scene : Scene
-        Buildings (footprints) and area (receiver-grid bounds); may be None when
+        Obstacles (:func:`~mmwsim.geometry.scene_obstacles`) and area (receiver-grid bounds); may be None when
         ``free_space`` is given.
     kind : str or MotionModel
         ``pedestrian``, ``vehicle``, ``hybrid``, ``static`` or a custom model.
@@ -280,11 +280,11 @@ def generate(
             raise TrajectoryError(f"number of {kind} trajectories must be an integer >= 0, got {n!r}")
         total += int(n)
     check_fits(total * length * _BYTES_PER_STEP, f"generating {total} trajectories of {length} steps")
-    models = {**MODELS, **(models or {})}
+    models = {**MOTION_MODELS, **(models or {})}
     bounds = (
         scene.receivers.bounds if free_space_bounds is None else np.asarray(free_space_bounds, dtype=float)
     )
-    footprints = scene.footprints if scene is not None else []
+    obstacles = scene_obstacles(scene) if scene is not None else []
     name = f"scene {scene.name!r}" if scene is not None else "area"
     net = None
     parts: list[Trajectories] = []
@@ -294,14 +294,14 @@ def generate(
         if n == 0:
             continue
         model = models[kind]
-        fs = FreeSpace(footprints, bounds, model.clearance, coverage, name=name)
+        fs = FreeSpace(obstacles, bounds, model.clearance, coverage, name=name)
         streets = None
         if kind == "vehicle" and vehicles_on_streets:
             if net is None:
                 net = (
                     StreetNetwork.from_scene(scene, street_half_width, bounds=bounds)
                     if scene is not None
-                    else StreetNetwork.from_footprints(footprints, bounds, street_half_width)
+                    else StreetNetwork.from_footprints([], bounds, street_half_width)
                 )
             streets = net
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(code,)))

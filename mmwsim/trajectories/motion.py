@@ -12,17 +12,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Literal, get_args
 
 from .errors import TrajectoryError
 
 __all__ = [
     "KINDS",
+    "Kind",
+    "MOTION_MODELS",
     "MotionModel",
     "PEDESTRIAN",
     "VEHICLE",
     "HYBRID",
     "STATIC",
-    "MODELS",
     "motion_model",
     "EVENT_NAMES",
     "NONE",
@@ -33,8 +35,10 @@ __all__ = [
     "ROAD",
 ]
 
-KINDS: tuple[str, ...] = ("static", "pedestrian", "hybrid", "vehicle")
-"""Kind codes stored with trajectories: index into this tuple."""
+Kind = Literal["static", "pedestrian", "hybrid", "vehicle"]
+"""A kind of user."""
+KINDS: tuple[Kind, ...] = get_args(Kind)
+"""Kind codes stored with trajectories (and estimation's sequence sets): index into this tuple."""
 
 # Per-step event codes stored with every trajectory (why a step looks the way it does).
 NONE, STOP, TURN, SPEED, AVOID, ROAD = 0, 1, 2, 3, 4, 5
@@ -68,7 +72,7 @@ class MotionModel:
         Minimum distance of every sample and segment from the buildings, metres.
     """
 
-    kind: str
+    kind: Kind
     mean_speed: float
     max_speed: float
     speed_change: float
@@ -149,12 +153,13 @@ VEHICLE = MotionModel("vehicle", 8.3, 13.9, 3.0, 5.0, p_stop=0.02, p_turn=0.05, 
 HYBRID = MotionModel("hybrid", 3.4, 5.3, 0.95, 7.5, p_stop=0.06, p_turn=0.05, p_speed=0.09, clearance=1.0)
 STATIC = MotionModel("static", 0.0, 0.0, 0.0, 0.0, p_stop=0.0, p_turn=0.0, p_speed=0.0, clearance=0.5)
 
-MODELS: dict[str, MotionModel] = {m.kind: m for m in (STATIC, PEDESTRIAN, HYBRID, VEHICLE)}
+MOTION_MODELS: dict[Kind, MotionModel] = {m.kind: m for m in (STATIC, PEDESTRIAN, HYBRID, VEHICLE)}
+"""The reference motion model of every kind."""
 
 
 def motion_model(kind: str) -> MotionModel:
     """The reference model of ``kind``."""
     try:
-        return MODELS[kind]
+        return MOTION_MODELS[kind]
     except KeyError:
         raise TrajectoryError(f"unknown trajectory kind {kind!r} (use {', '.join(KINDS)})") from None

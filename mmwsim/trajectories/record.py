@@ -4,10 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import numpy as np
-import rerun as rr
-
-from ..recording import Entity, Recording, Timeline, log_footprints, log_legend, log_map_context, north_up
+from ..recording import Entity, Recording, log_footprints, log_legend, log_map_context, log_track, north_up
 from .motion import KINDS
 from .trajectories import Trajectories
 
@@ -63,36 +60,16 @@ def log_trajectories(
         log_footprints(rec, scene)
         log_map_context(rec, Entity.TRAJECTORIES, scene.footprints, trajectories.positions[:n].reshape(-1, 2))
     for i in range(n):
-        pos = trajectories.positions[i].astype(np.float32)
         kind = KINDS[int(trajectories.kind[i])]
-        color = KIND_COLORS[kind]
-        entity = Entity.trajectory(int(trajectories.ids[i]), source)
-        label = [f"{kind} {int(trajectories.ids[i])}"] if labels else None
-        rec.log(
-            entity,
-            rr.LineStrips2D(
-                [pos], colors=[(*color, 110)], radii=rr.Radius.ui_points(1.2), labels=label, show_labels=False
-            ),
-            static=True,
-        )
-        steps = np.arange(len(pos))
-        # One columnar call per trajectory: row k holds the trail up to step k and the head.
-        columns = [
-            *rr.LineStrips2D.columns(
-                strips=[pos[: k + 1] for k in steps],
-                colors=[color] * len(pos),
-                radii=rr.Radius.ui_points(np.full(len(pos), 2.0)),
-            ),
-            *rr.Points2D.columns(
-                positions=pos,
-                colors=[color] * len(pos),
-                radii=rr.Radius.ui_points(np.full(len(pos), 4.5)),
-                labels=(label * len(pos)) if label else None,
-                show_labels=np.zeros(len(pos), dtype=bool),
-            ),
-        ]
-        rec.stream.send_columns(
-            f"{entity}/now", indexes=[rr.TimeColumn(Timeline.STEP, sequence=steps)], columns=columns
+        ident = int(trajectories.ids[i])
+        label = f"{kind} {ident}" if labels else None
+        log_track(
+            rec,
+            Entity.trajectory(ident, source),
+            trajectories.positions[i],
+            KIND_COLORS[kind],
+            label,
+            alpha=110,
         )
     shown = sorted({KINDS[int(k)] for k in trajectories.kind[:n]}, key=list(KIND_COLORS).index)
     log_legend(

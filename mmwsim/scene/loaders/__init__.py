@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
 from ...errors import MmwsimError
+from ..catalogue import load_named_scene
 from ..osm.read import is_osm_path
 from ..scene import Scene
 from .mesh_file import load_mesh_file
@@ -19,6 +19,8 @@ _MESH_SUFFIXES = {".obj", ".ply", ".glb", ".gltf", ".stl", ".off", ".dae", ".3mf
 
 def load_scene(source: str | Path | Scene, transmitter: tuple[float, float, float] | None = None) -> Scene:
     """A scene from a catalogue name (``default``, ``manhattan:seed=3``, ...) or a file.
+
+    Names are looked up in the scene registry (:mod:`mmwsim.scene.catalogue`).
 
     Files are read by suffix: ``.toml`` scene files, ``.xml`` Mitsuba scenes, any
     mesh format trimesh reads. An OpenStreetMap file needs an area, so it is named as a
@@ -54,5 +56,4 @@ def load_scene(source: str | Path | Scene, transmitter: tuple[float, float, floa
         if not path.exists():
             raise MmwsimError(f"{path}: file not found")
         return load_mesh_file(path, transmitter=transmitter)
-    catalogue = importlib.import_module("scenes")
-    return catalogue.load(text, transmitter=transmitter)
+    return load_named_scene(text, transmitter=transmitter)

@@ -1,6 +1,6 @@
 """Motion models of the candidate smoother: how far users move per step and how that changes.
 
-:func:`~estimation.models.candidates.velocity_posterior` scores a path of grid candidates by the
+:func:`~estimation.smoothing.hmm.velocity_posterior` scores a path of grid candidates by the
 density of its first displacement and of every change of displacement ("acceleration", metres per
 step squared). Two models give those densities:
 

@@ -1,4 +1,4 @@
-"""The free space of a disc-shaped agent in the plane of a scene, and its exact and fast tests.
+"""The space of a disc-shaped agent in the plane of a scene, and its exact and fast tests.
 
 The agent is a vertical cylinder of radius ``radius`` and height ``height`` standing ``lift``
 above the scene's lowest point. A state (x, y) is valid when it lies in the planning region
@@ -18,9 +18,11 @@ sampled at nodes ``resolution`` apart. ``m`` is 1-Lipschitz, so ``m(p) >= M[node
 and a disc of that radius around ``p`` is valid; a motion is walked in such safe strides and
 is certified in one or two look-ups in open streets. Only where the bound cannot prove
 validity (within about a raster step of an obstacle or corridor edge) is the exact FCL test
-run. The obstacles of the 2D map are the building footprints (solid prisms) and the parts of
-other non-ground triangles within the agent's height range, so the certificate never passes
-what FCL would reject.
+run. The obstacles of the 2D map are those of the scene's free space
+(:func:`mmwsim.geometry.scene_obstacles`, the same the trajectories avoid): the building footprints
+(solid prisms) and the parts of other non-ground triangles within the agent's height range, so the
+certificate never passes what FCL would reject. What is the planner's own: the agent radius, the
+clearance raster and the FCL tests.
 """
 
 from __future__ import annotations
@@ -32,12 +34,13 @@ import fcl
 import numpy as np
 import shapely
 
+from mmwsim.geometry.freespace import AGENT_HEIGHT, AGENT_LIFT, scene_obstacles
 from mmwsim.scene import Scene
 
 from .corridor import Corridor
 from .errors import PlanningError
 
-__all__ = ["FreeSpace"]
+__all__ = ["AgentSpace"]
 
 # Margins below this (metres) are left to the exact test rather than walked in tiny strides.
 _MIN_STRIDE = 1e-3
@@ -45,7 +48,7 @@ _MAX_STRIDES = 64
 _MAX_NODES = 1 << 23
 
 
-class FreeSpace:
+class AgentSpace:
     """Valid states and motions of a cylinder agent among a scene's buildings.
 
     Parameters
@@ -77,8 +80,8 @@ class FreeSpace:
         radius: float = 0.5,
         corridor: Corridor | None = None,
         resolution: float = 0.25,
-        height: float = 1.8,
-        lift: float = 0.2,
+        height: float = AGENT_HEIGHT,
+        lift: float = AGENT_LIFT,
         reach: float = 10.0,
     ):
         for name, v in (("radius", radius), ("resolution", resolution), ("height", height), ("reach", reach)):
@@ -107,7 +110,7 @@ class FreeSpace:
         self._footprints = shapely.union_all(footprints) if footprints else None
         if self._footprints is not None:
             shapely.prepare(self._footprints)
-        self.obstacles = footprints + _slab_cuts(scene, self.z0, self.z1, self._footprints)
+        self.obstacles = scene_obstacles(scene, lift, self.height)
         self._reach = float(reach)
         self._build_raster()
         solid = any(o.kind != "ground" and len(o.mesh.faces) for o in scene.objects)
@@ -291,6 +294,43 @@ class FreeSpace:
             )
         return x, y
 
+    def clear_nodes(self) -> np.ndarray:
+        """(k, 2) float64 nodes of the clearance raster where the agent certainly fits (a margin of
+        at least a tenth of its radius), metres."""
+        clear = np.argwhere(self.margin > 0.1 * self.radius)  # raster node indices, x first
+        return self.bounds[0] + self.resolution * clear
+
+    def nearest_free_point(self, point) -> np.ndarray | None:
+        """Where a planner can start or end closest to ``point``.
+
+        Parameters
+        ----------
+        point : (2,) float, metres
+
+        Returns
+        -------
+        (2,) float64 or None
+            ``point`` itself when the agent may stand there (inside the corridor, clear of every
+            obstacle), else the nearest of :meth:`clear_nodes`, else None (no free point in the
+            region).
+        """
+        try:
+            return np.array(self.check_endpoint(point, "point"), dtype=np.float64)
+        except PlanningError:
+            pass
+        return self._extreme_node(point, nearest=True)
+
+    def farthest_free_point(self, point) -> np.ndarray | None:
+        """The one of :meth:`clear_nodes` farthest (straight-line) from ``point`` (2,) metres, or None."""
+        return self._extreme_node(point, nearest=False)
+
+    def _extreme_node(self, point, nearest: bool) -> np.ndarray | None:
+        nodes = self.clear_nodes()
+        if not len(nodes):
+            return None
+        d2 = ((nodes - np.asarray(point, dtype=np.float64)) ** 2).sum(axis=1)
+        return nodes[int(np.argmin(d2) if nearest else np.argmax(d2))]
+
     def summary(self) -> str:
         """One line: region, raster and agent."""
         (x0, y0), (x1, y1) = self.bounds
@@ -305,55 +345,6 @@ class FreeSpace:
 
 
 # ---------------------------------------------------------------------- helpers
-def _slab_cuts(scene: Scene, z0: float, z1: float, footprints) -> list[shapely.Geometry]:
-    """Projections of the parts of non-ground triangles between heights z0 and z1.
-
-    Buildings enter the map as their footprints (solid prisms); pieces already inside a
-    footprint are dropped, so building triangles only add what the footprints miss (walls
-    without a roof, fins).
-    """
-    idx = [i for i, o in enumerate(scene.objects) if o.kind != "ground"]
-    sel = np.flatnonzero(np.isin(scene.face_object, idx))
-    if len(sel) == 0:
-        return []
-    tri = scene.vertices[scene.faces[sel]]
-    z = tri[:, :, 2]
-    tri = tri[(z.max(axis=1) >= z0) & (z.min(axis=1) <= z1)]
-    out = []
-    covered = footprints.buffer(1e-6) if footprints is not None else None
-    for t in tri:
-        poly = _clip_z(_clip_z(list(t), z0, keep_above=True), z1, keep_above=False)
-        if not poly:
-            continue
-        xy = np.array(poly)[:, :2]
-        area2 = abs(np.dot(xy[:, 0], np.roll(xy[:, 1], -1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], -1)))
-        if area2 > 1e-9 and len(xy) >= 3:
-            g = shapely.Polygon(xy)
-        else:  # a vertical piece projects to a segment: keep its two farthest points
-            d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
-            a, b = np.unravel_index(np.argmax(d), d.shape)
-            g = shapely.Point(xy[a]) if d[a, b] == 0 else shapely.LineString([xy[a], xy[b]])
-        if covered is None or not covered.covers(g):
-            out.append(g)
-    return out
-
-
-def _clip_z(poly: list, level: float, keep_above: bool) -> list:
-    """Sutherland-Hodgman clip of a 3D polygon by the plane z = level."""
-    out = []
-    n = len(poly)
-    for k in range(n):
-        p, q = poly[k], poly[(k + 1) % n]
-        pin = p[2] >= level if keep_above else p[2] <= level
-        qin = q[2] >= level if keep_above else q[2] <= level
-        if pin:
-            out.append(p)
-        if pin != qin:
-            s = (level - p[2]) / (q[2] - p[2])
-            out.append(p + s * (q - p))
-    return out
-
-
 def _boundary_segments(geoms: list) -> np.ndarray:
     """(n, 2, 2) float64 edges of the geometries' boundaries (a point gives a zero-length edge)."""
     segs = [np.zeros((0, 2, 2))]

@@ -1,29 +1,95 @@
-"""Where a user may be and move: outside the (clearance-grown) building footprints, inside the
-receiver-grid bounds and, when a data set is given, at points with coverage.
+"""Where a user or an agent may be and move, in the plane of a scene: one model for the
+trajectories, the demo and the planner.
 
-All queries are vectorised: points and segments go to shapely's STRtree in one call.
+The obstacles are the building footprints (solid prisms) and, of every other non-ground object,
+the parts between ``lift`` and ``lift + height`` above the scene's lowest point projected onto the
+plane (a wall without a roof, a fin): what a person-sized body standing on the ground would touch.
+:class:`FreeSpace` keeps a clearance from them, stays within bounds and, given a data set's
+coverage, at covered points. All queries are vectorised: points and segments go to shapely's
+STRtree in one call. The planner adds its own agent radius, clearance raster and FCL tests on top
+(:class:`planning.AgentSpace`).
 """
 
 from __future__ import annotations
 
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import shapely
 
-from ..dataset.store import nearest_index
-from .errors import TrajectoryError
+from ..errors import MmwsimError
 
 if TYPE_CHECKING:
-    from ..dataset import Dataset
     from ..scene import ReceiverGrid, Scene
 
-__all__ = ["FreeSpace", "CoverageMask", "nearest_grid_index"]
+__all__ = ["AGENT_HEIGHT", "AGENT_LIFT", "CoverageMask", "FreeSpace", "scene_obstacles", "slab_cuts"]
 
-nearest_grid_index = nearest_index
-"""(...,) int64 flat index (ix + nx iy) of the grid point nearest to each (..., 2) position
-(the data set's own lookup, :meth:`mmwsim.dataset.Dataset.nearest`)."""
+AGENT_LIFT = 0.2
+"""Clearance of a body above the scene's lowest point, metres: kerbs and ground steps below it."""
+AGENT_HEIGHT = 1.8
+"""Height of the body whose obstacles count, metres."""
+
+
+def scene_obstacles(
+    scene: Scene, lift: float = AGENT_LIFT, height: float = AGENT_HEIGHT
+) -> list[shapely.Geometry]:
+    """The 2D obstacles of ``scene``: its building footprints, then the projections of the parts of
+    other non-ground triangles between ``lift`` and ``lift + height`` above its lowest point that
+    the footprints do not already cover."""
+    footprints = list(scene.footprints)
+    z0 = float(scene.extent[0][2]) + float(lift)
+    union = shapely.union_all(footprints) if footprints else None
+    return footprints + slab_cuts(scene, z0, z0 + float(height), union)
+
+
+def slab_cuts(scene: Scene, z0: float, z1: float, footprints) -> list[shapely.Geometry]:
+    """Projections of the parts of non-ground triangles between heights z0 and z1.
+
+    Buildings enter the map as their footprints (solid prisms); pieces already inside a
+    footprint are dropped, so building triangles only add what the footprints miss (walls
+    without a roof, fins).
+    """
+    idx = [i for i, o in enumerate(scene.objects) if o.kind != "ground"]
+    sel = np.flatnonzero(np.isin(scene.face_object, idx))
+    if len(sel) == 0:
+        return []
+    tri = scene.vertices[scene.faces[sel]]
+    z = tri[:, :, 2]
+    tri = tri[(z.max(axis=1) >= z0) & (z.min(axis=1) <= z1)]
+    out = []
+    covered = footprints.buffer(1e-6) if footprints is not None else None
+    for t in tri:
+        poly = _clip_z(_clip_z(list(t), z0, keep_above=True), z1, keep_above=False)
+        if not poly:
+            continue
+        xy = np.array(poly)[:, :2]
+        area2 = abs(np.dot(xy[:, 0], np.roll(xy[:, 1], -1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], -1)))
+        if area2 > 1e-9 and len(xy) >= 3:
+            g = shapely.Polygon(xy)
+        else:  # a vertical piece projects to a segment: keep its two farthest points
+            d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+            a, b = np.unravel_index(np.argmax(d), d.shape)
+            g = shapely.Point(xy[a]) if d[a, b] == 0 else shapely.LineString([xy[a], xy[b]])
+        if covered is None or not covered.covers(g):
+            out.append(g)
+    return out
+
+
+def _clip_z(poly: list, level: float, keep_above: bool) -> list:
+    """Sutherland-Hodgman clip of a 3D polygon by the plane z = level."""
+    out = []
+    n = len(poly)
+    for k in range(n):
+        p, q = poly[k], poly[(k + 1) % n]
+        pin = p[2] >= level if keep_above else p[2] <= level
+        qin = q[2] >= level if keep_above else q[2] <= level
+        if pin:
+            out.append(p)
+        if pin != qin:
+            s = (level - p[2]) / (q[2] - p[2])
+            out.append(p + s * (q - p))
+    return out
 
 
 class CoverageMask:
@@ -40,31 +106,28 @@ class CoverageMask:
     def __init__(self, grid: ReceiverGrid, valid: np.ndarray):
         valid = np.asarray(valid, dtype=bool).reshape(-1)
         if valid.size != grid.size:
-            raise TrajectoryError(f"validity mask has {valid.size} entries, the grid {grid.size}")
+            raise MmwsimError(f"validity mask has {valid.size} entries, the grid {grid.size}")
         self.grid = grid
         self.valid = valid
 
     @classmethod
-    def from_dataset(cls, dataset: Dataset) -> CoverageMask:
-        """The data set's validity mask (outdoors and detected) on its grid."""
+    def from_dataset(cls, dataset: Any) -> CoverageMask:
+        """The validity mask (outdoors and detected) of a :class:`~mmwsim.dataset.Dataset` on its grid."""
         return cls(dataset.grid, dataset.valid)
-
-    def nearest_index(self, points: np.ndarray) -> np.ndarray:
-        """(n,) int64 index of the nearest grid point of each (n, 2) position (clipped to the grid)."""
-        return nearest_grid_index(self.grid, points)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """(n,) bool: whether the nearest grid point of each (n, 2) position is valid."""
-        return self.valid[self.nearest_index(points)]
+        return self.valid[self.grid.nearest_index(points)]
 
 
 class FreeSpace:
-    """The 2D area users may occupy.
+    """The 2D area users and agents may occupy.
 
     Parameters
     ----------
-    footprints : list of shapely.Polygon
-        Building footprints (``Scene.footprints``).
+    obstacles : list of shapely geometries
+        What blocks the plane: building footprints and the parts of other objects within reach
+        (:func:`scene_obstacles`).
     bounds : (2, 2) float
         [[xmin, ymin], [xmax, ymax]] the users stay within, metres.
     clearance : float
@@ -77,7 +140,7 @@ class FreeSpace:
 
     def __init__(
         self,
-        footprints: list[shapely.Polygon],
+        obstacles: list[shapely.Geometry],
         bounds: np.ndarray,
         clearance: float = 0.0,
         coverage: CoverageMask | None = None,
@@ -85,14 +148,14 @@ class FreeSpace:
     ):
         b = np.asarray(bounds, dtype=np.float64).reshape(2, 2)
         if not np.all(np.isfinite(b)) or np.any(b[1] <= b[0]):
-            raise TrajectoryError(f"{name}: the area bounds {b.tolist()} are empty")
+            raise MmwsimError(f"{name}: the area bounds {b.tolist()} are empty")
         if not (np.isfinite(clearance) and clearance >= 0):
-            raise TrajectoryError(f"clearance must be >= 0 m, got {clearance!r}")
+            raise MmwsimError(f"clearance must be >= 0 m, got {clearance!r}")
         self.bounds = b
         self.clearance = float(clearance)
         self.coverage = coverage
         self.name = name
-        polys = list(footprints)
+        polys = list(obstacles)
         if clearance > 0 and polys:
             # Square joins/caps: the grown footprint contains every point within `clearance`
             # (a round buffer is polygonised and would cut corners slightly).
@@ -102,12 +165,16 @@ class FreeSpace:
 
     @classmethod
     def from_scene(
-        cls, scene: Scene, clearance: float = 0.0, coverage: CoverageMask | None = None
+        cls,
+        scene: Scene,
+        clearance: float = 0.0,
+        coverage: CoverageMask | None = None,
+        bounds: np.ndarray | None = None,
     ) -> FreeSpace:
-        """Free space of ``scene`` within its receiver-grid bounds."""
-        return cls(
-            scene.footprints, scene.receivers.bounds, clearance, coverage, name=f"scene {scene.name!r}"
-        )
+        """Free space of ``scene`` (:func:`scene_obstacles`) within ``bounds``, by default its
+        receiver-grid bounds."""
+        area = scene.receivers.bounds if bounds is None else bounds
+        return cls(scene_obstacles(scene), area, clearance, coverage, name=f"scene {scene.name!r}")
 
     @cached_property
     def area(self) -> float:
@@ -183,9 +250,9 @@ class FreeSpace:
         if n == 0:
             return out
         if self.area <= 0.0:
-            raise TrajectoryError(f"{self.name}: no free area to place users in (everything is built up)")
+            raise MmwsimError(f"{self.name}: no free area to place users in (everything is built up)")
         if self.coverage is not None and not self.coverage.valid.any():
-            raise TrajectoryError(f"{self.name}: the data set has no valid (covered) receiver point")
+            raise MmwsimError(f"{self.name}: the data set has no valid (covered) receiver point")
         frac = self.area / float(np.prod(self.bounds[1] - self.bounds[0]))
         for _ in range(max_rounds):
             m = int(min(4 * n, (n - have) / max(frac, 1e-3) * 1.3 + 16))
@@ -195,6 +262,6 @@ class FreeSpace:
             have += len(p)
             if have == n:
                 return out
-        raise TrajectoryError(
+        raise MmwsimError(
             f"{self.name}: could not find {n} valid start points (too little free, covered area)"
         )

@@ -3,9 +3,9 @@
 bit(beam i, bin j) = 1 iff PDP_dBm[i, j] + N(0, sigma^2) >= threshold, with noise drawn
 afresh at every use, over a window of bins (default 1..81: N_s = 81).
 
-Two ways to draw them, with the same distribution:
+:class:`NoiseModel` states the model; numpy draws its bits two ways, with the same distribution:
 
-- :func:`fingerprints` adds float32 Gaussian noise to every entry, literally.
+- :meth:`NoiseModel.bits` adds float32 Gaussian noise to every entry, literally.
 - :class:`FingerprintSampler` precomputes, per receiver, the probability of a one,
   ``Q((threshold - PDP) / sigma)``, quantised to 2^-32, and draws each bit as an
   exact Bernoulli variable from raw random bytes: one byte decides unless it ties
@@ -19,87 +19,98 @@ Two ways to draw them, with the same distribution:
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import erfc
 
+from ..constants import BINS, SIGMA_DB, THRESHOLD_DBM
 from ..errors import MmwsimError
 
-__all__ = [
-    "SIGMA_DB",
-    "THRESHOLD_DBM",
-    "BINS",
-    "detection_probability",
-    "fingerprints",
-    "FingerprintSampler",
-]
+__all__ = ["FingerprintSampler", "NoiseModel"]
 
-SIGMA_DB = 6.0
-"""Standard deviation of the log-normal noise, dB."""
-THRESHOLD_DBM = -115.0
-"""Detection threshold on PDPs at 30 dBm / 10 dBi (= -100 dBm at 45 dBm transmit power)."""
-BINS = (1, 82)
-"""Bin window [start, stop): bins 1..81, N_s = 81."""
 
 _CHUNK = 2048  # fingerprints per task; fixes the random streams, so results do not depend on threads
 
 
-def _window(bins: tuple[int, int], n_bins: int) -> slice:
-    lo, hi = int(bins[0]), int(bins[1])
-    if not 0 <= lo < hi <= n_bins:
-        raise MmwsimError(f"bin window {lo}..{hi - 1} does not fit in {n_bins} bins")
-    return slice(lo, hi)
+@dataclass(frozen=True)
+class NoiseModel:
+    """The fingerprint noise model: ``bit = 1 iff PDP_dBm + N(0, sigma^2) >= threshold`` over a
+    window of bins, noise drawn afresh at every use.
 
-
-def detection_probability(
-    pdp_dbm: np.ndarray, sigma_db: float = SIGMA_DB, threshold_dbm: float = THRESHOLD_DBM
-) -> np.ndarray:
-    """P(PDP + N(0, sigma^2) >= threshold), same shape as ``pdp_dbm``, float64.
-
-    With ``sigma_db = 0`` the bit is deterministic (1 where PDP >= threshold).
-    """
-    p = np.asarray(pdp_dbm, dtype=np.float64)
-    if sigma_db < 0:
-        raise MmwsimError(f"noise sigma must be >= 0 dB, got {sigma_db!r}")
-    if sigma_db == 0:
-        return (p >= threshold_dbm).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        return 0.5 * erfc((threshold_dbm - p) / (sigma_db * np.sqrt(2.0)))
-
-
-def fingerprints(
-    pdp_dbm: np.ndarray,
-    rng: np.random.Generator,
-    sigma_db: float = SIGMA_DB,
-    threshold_dbm: float = THRESHOLD_DBM,
-    bins: tuple[int, int] = BINS,
-) -> np.ndarray:
-    """Fingerprints of PDPs with fresh Gaussian noise (the literal definition).
+    This is the one specification; its back-ends draw the bits: :meth:`bits` (numpy, Gaussian
+    noise on every entry, the literal definition), :class:`FingerprintSampler` (numpy, exact
+    Bernoulli draws of :meth:`probability` for a fixed set of PDPs) and
+    :mod:`estimation.noise` (torch, for training and evaluation).
 
     Parameters
     ----------
-    pdp_dbm : (..., n_beams, n_bins) float
-        Power-delay profiles, dBm (-inf: no signal).
-    rng : numpy.random.Generator
-        Source of the noise; advanced by the call.
     sigma_db : float
-        Noise standard deviation, dB.
+        Noise standard deviation, dB (0: the bit is deterministic).
     threshold_dbm : float
+        Detection threshold, dBm.
     bins : (start, stop)
-        Bin window.
-
-    Returns
-    -------
-    (..., n_beams, stop - start) uint8
-        0 / 1 bits.
+        Bin window of the fingerprint, ``[start, stop)``.
     """
-    pdp = np.asarray(pdp_dbm)
-    w = _window(bins, pdp.shape[-1])
-    margin = (np.float32(threshold_dbm) - pdp[..., w].astype(np.float32)) / np.float32(max(sigma_db, 1e-30))
-    if sigma_db == 0:
-        return (margin <= 0).astype(np.uint8)
-    noise = rng.standard_normal(margin.shape, dtype=np.float32)
-    return (noise >= margin).view(np.uint8)
+
+    sigma_db: float = SIGMA_DB
+    threshold_dbm: float = THRESHOLD_DBM
+    bins: tuple[int, int] = BINS
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.sigma_db) and self.sigma_db >= 0):
+            raise MmwsimError(f"noise sigma must be >= 0 dB, got {self.sigma_db!r}")
+        if not np.isfinite(self.threshold_dbm):
+            raise MmwsimError(
+                f"the detection threshold must be a finite number of dBm, got {self.threshold_dbm!r}"
+            )
+        object.__setattr__(self, "sigma_db", float(self.sigma_db))
+        object.__setattr__(self, "threshold_dbm", float(self.threshold_dbm))
+        object.__setattr__(self, "bins", (int(self.bins[0]), int(self.bins[1])))
+
+    def window(self, n_bins: int) -> slice:
+        """The bin window as a slice of profiles of ``n_bins`` bins (a one-line error if it does not fit)."""
+        lo, hi = self.bins
+        if not 0 <= lo < hi <= n_bins:
+            raise MmwsimError(f"bin window {lo}..{hi - 1} does not fit in {n_bins} bins")
+        return slice(lo, hi)
+
+    def whole(self, n_bins: int) -> NoiseModel:
+        """The same noise over all ``n_bins`` bins (for PDPs already cut to the window)."""
+        return NoiseModel(self.sigma_db, self.threshold_dbm, (0, int(n_bins)))
+
+    def probability(self, pdp_dbm: np.ndarray) -> np.ndarray:
+        """P(PDP + N(0, sigma^2) >= threshold), same shape as ``pdp_dbm`` (all bins), float64."""
+        p = np.asarray(pdp_dbm, dtype=np.float64)
+        if self.sigma_db == 0:
+            return (p >= self.threshold_dbm).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            return 0.5 * erfc((self.threshold_dbm - p) / (self.sigma_db * np.sqrt(2.0)))
+
+    def bits(self, pdp_dbm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Fingerprints of PDPs with fresh Gaussian noise on every entry of the window.
+
+        Parameters
+        ----------
+        pdp_dbm : (..., n_beams, n_bins) float
+            Power-delay profiles, dBm (-inf: no signal).
+        rng : numpy.random.Generator
+            Source of the noise; advanced by the call.
+
+        Returns
+        -------
+        (..., n_beams, stop - start) uint8
+            0 / 1 bits.
+        """
+        pdp = np.asarray(pdp_dbm)
+        w = self.window(pdp.shape[-1])
+        margin = (np.float32(self.threshold_dbm) - pdp[..., w].astype(np.float32)) / np.float32(
+            max(self.sigma_db, 1e-30)
+        )
+        if self.sigma_db == 0:
+            return (margin <= 0).astype(np.uint8)
+        noise = rng.standard_normal(margin.shape, dtype=np.float32)
+        return (noise >= margin).view(np.uint8)
 
 
 class FingerprintSampler:
@@ -109,11 +120,8 @@ class FingerprintSampler:
     ----------
     pdp_dbm : (n_rx, n_beams, n_bins) array-like
         Power-delay profiles, dBm; any float dtype; may be a zarr array (read in chunks).
-    sigma_db : float
-        Noise standard deviation, dB.
-    threshold_dbm : float
-    bins : (start, stop)
-        Bin window.
+    noise : NoiseModel
+        Noise, threshold and bin window (default the contract's: 6 dB, -115 dBm, bins 1..81).
 
     Notes
     -----
@@ -121,33 +129,24 @@ class FingerprintSampler:
     neither 0 nor 1 to 32 bits, plus 8 bytes per sure one.
     """
 
-    def __init__(
-        self,
-        pdp_dbm,
-        sigma_db: float = SIGMA_DB,
-        threshold_dbm: float = THRESHOLD_DBM,
-        bins: tuple[int, int] = BINS,
-    ):
+    def __init__(self, pdp_dbm, noise: NoiseModel | None = None):
+        noise = NoiseModel() if noise is None else noise
         shape = tuple(pdp_dbm.shape)
         if len(shape) != 3:
             raise MmwsimError(f"PDPs must have shape (n_rx, n_beams, n_bins), got {shape}")
-        w = _window(bins, shape[2])
+        w = noise.window(shape[2])
         self.n_rx, self.n_beams = shape[0], shape[1]
         self.n_window = w.stop - w.start
         self.shape = (self.n_beams, self.n_window)
         n_entries = self.n_beams * self.n_window
         if n_entries > 65536:
             raise MmwsimError(f"{n_entries} entries per fingerprint exceed the sampler's 65,536")
-        self.sigma_db, self.threshold_dbm, self.bins = (
-            float(sigma_db),
-            float(threshold_dbm),
-            (w.start, w.stop),
-        )
+        self.noise = noise
         counts, pos, hi, lo = [], [], [], []
         step = max(1, (1 << 22) // max(1, n_entries))  # about 4 M entries per block
         for s in range(0, self.n_rx, step):
             block = np.asarray(pdp_dbm[s : s + step, :, w.start : w.stop]).reshape(-1, n_entries)
-            q = np.rint(detection_probability(block, sigma_db, threshold_dbm) * 2.0**32).astype(np.uint64)
+            q = np.rint(noise.probability(block) * 2.0**32).astype(np.uint64)
             rows, cols = np.nonzero(q)
             q = q[rows, cols]
             counts.append(np.bincount(rows, minlength=len(block)))

@@ -1,0 +1,139 @@
+"""Maximum-likelihood matching of noisy fingerprints against the grid's PDPs.
+
+With the noise model ``bit = 1 iff PDP + N(0, sigma^2) >= threshold`` every grid point g predicts
+bit (i, j) with probability ``p_gij = Phi((PDP_gij - threshold) / sigma)``, and an observed
+fingerprint x scores ``sum_ij x_ij log p_gij + (1 - x_ij) log(1 - p_gij)``, i.e. one matrix product
+``x @ W.T + c`` with ``W = logit p`` and ``c = sum log(1 - p)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from .noise import log_detection_probabilities
+
+__all__ = ["FingerprintMatcher"]
+
+
+class FingerprintMatcher:
+    """Maximum-likelihood grid points of noisy fingerprints.
+
+    Parameters
+    ----------
+    grid_pdp : (G, M, N_s) tensor, dBm
+    grid_xy : (G, 2) float, metres
+    sigma : float, dB
+        Noise level assumed by the likelihood (that of the observations).
+    threshold : float, dBm
+    eps : float
+        Probabilities are clipped to ``[eps, 1 - eps]`` (in log space) so that a bit the model calls
+        impossible costs a point ``log eps`` instead of vetoing it. The observations follow the
+        model exactly, so a small floor is best: 1e-6 puts users standing still about 1.2 m closer on
+        average than 1e-3 (13 on test/seen of the default data set at 6 dB).
+    chunk : int
+        Grid points per block when the weights are built.
+
+    Notes
+    -----
+    The weights ``logit p`` are built once, ``(C, G)`` float32 for the ``C`` fingerprint entries in
+    which any grid point has signal (about 200 MB for the default data set), so that scoring a
+    fingerprint is a sum of the weight rows of its ones.
+    """
+
+    def __init__(
+        self,
+        grid_pdp: torch.Tensor,
+        grid_xy: np.ndarray,
+        sigma: float,
+        threshold: float,
+        eps: float = 1e-6,
+        chunk: int = 16384,
+    ):
+        self.grid_pdp, self.grid_xy = grid_pdp, np.asarray(grid_xy, np.float64)
+        self.sigma, self.threshold, self.eps, self.chunk = float(sigma), float(threshold), eps, chunk
+        flat = grid_pdp.reshape(len(grid_pdp), -1)
+        # Columns where no grid point has any signal can never read 1 and score all points alike.
+        self.columns = torch.nonzero(torch.isfinite(flat).any(0)).flatten()
+        self._w: torch.Tensor | None = None
+        self._c: torch.Tensor | None = None
+
+    def _weights(self, rows: slice) -> tuple[torch.Tensor, torch.Tensor]:
+        pdp = self.grid_pdp[rows].reshape(-1, self.grid_pdp.shape[1] * self.grid_pdp.shape[2])
+        pdp = pdp[:, self.columns].float()
+        log_p, log_q = log_detection_probabilities(pdp, self.sigma, self.threshold, math.log(self.eps))
+        return log_p - log_q, log_q.sum(1)
+
+    def _tables(self) -> tuple[torch.Tensor, torch.Tensor]:
+        if self._w is None:
+            G = len(self.grid_pdp)
+            w = torch.empty((len(self.columns), G), dtype=torch.float32)
+            c = torch.empty(G, dtype=torch.float32)
+            for k in range(0, G, self.chunk):
+                wk, ck = self._weights(slice(k, k + self.chunk))
+                w[:, k : k + len(ck)] = wk.T
+                c[k : k + len(ck)] = ck
+            self._w, self._c = w, c
+        assert self._c is not None
+        return self._w, self._c
+
+    @torch.no_grad()
+    def scores(self, bits: torch.Tensor) -> torch.Tensor:
+        """Log-likelihood of every grid point: ``bits (N, M, N_s)`` -> ``(N, G)`` float32."""
+        w, c = self._tables()
+        x = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])[:, self.columns]
+        # Fingerprints are sparse (a few percent ones): x @ W as a sum of W's rows over the ones,
+        # i.e. an embedding bag, is several times faster than the dense product.
+        nz = torch.nonzero(x)
+        offsets = torch.searchsorted(nz[:, 0].contiguous(), torch.arange(len(x)))
+        return torch.nn.functional.embedding_bag(nz[:, 1], w, offsets, mode="sum") + c
+
+    @torch.no_grad()
+    def candidates(self, bits: torch.Tensor, k: int, block: int = 1024) -> tuple[torch.Tensor, torch.Tensor]:
+        """The ``k`` most likely grid points of each fingerprint, best first.
+
+        Parameters
+        ----------
+        bits : (..., M, N_s) tensor of 0/1
+        k : int
+        block : int
+            Fingerprints scored at once (bounds the ``(block, G)`` score matrix).
+
+        Returns
+        -------
+        scores : (..., k) float32 log-likelihoods
+        rows : (..., k) int64 grid rows (indices into ``grid_xy``)
+        """
+        lead = bits.shape[:-2]
+        flat = bits.reshape(-1, *bits.shape[-2:])
+        k = min(int(k), len(self.grid_pdp))
+        vals, rows = [], []
+        for a in range(0, len(flat), block):
+            v, i = self.scores(flat[a : a + block]).topk(k, dim=1)
+            vals.append(v)
+            rows.append(i)
+        if not vals:
+            return torch.zeros((*lead, k)), torch.zeros((*lead, k), dtype=torch.int64)
+        return torch.cat(vals).reshape(*lead, k), torch.cat(rows).reshape(*lead, k)
+
+    def candidate_points(self, bits: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`candidates` as positions: ``xy (..., k, 2)`` float32 metres and their
+        log-likelihoods ``(..., k)``."""
+        score, rows = self.candidates(bits, k)
+        return torch.from_numpy(self.grid_xy[rows.numpy()]).float(), score
+
+    def match(self, bits: torch.Tensor) -> np.ndarray:
+        """Best grid point per fingerprint.
+
+        Parameters
+        ----------
+        bits : (..., M, N_s) tensor of 0/1
+
+        Returns
+        -------
+        (..., 2) float64 positions of the matched grid points, metres
+        """
+        _, rows = self.candidates(bits, 1)
+        return self.grid_xy[rows[..., 0].numpy()]

@@ -1,0 +1,125 @@
+"""Transformer over fingerprint-match candidates (``tn-match``): our model, beyond the paper.
+
+The paper's transformer (``tn``) must learn the whole map from fingerprints to positions from the
+training trajectories, so it cannot place a user in a region no training trajectory visited. This
+model reads the data set's grid instead: for every step the exact fingerprint likelihood
+(:class:`~estimation.matching.FingerprintMatcher`) proposes its ``K`` most likely grid points, and a
+transformer encoder attends over all candidates of all steps to pick the ones that form a plausible
+motion. Each step's estimate is a convex combination of that step's candidates, so the model only
+sees relative geometry and likelihoods: it is translation invariant and does not depend on where
+the training trajectories ran.
+
+Its features are the hidden-Markov posteriors of :mod:`estimation.smoothing.hmm` (random walk,
+then constant velocity over the pruned candidates), with motion statistics
+(:class:`~estimation.smoothing.motion.MotionTable`) measured on the training trajectories and saved
+with the network. The sub-cell smoother's estimate (:func:`~estimation.smoothing.hmm.subcell_mean`)
+is the network's starting point; the network moves it toward its own weighting of the candidates
+where it learned to trust that.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
+from ..smoothing.motion import MotionTable, snap_to_lattice
+from .embedding import sinusoidal_encoding
+
+__all__ = ["CandidateTransformer"]
+
+_SCALE = 32.0  # metres; relative candidate offsets are divided by this
+
+
+class CandidateTransformer(nn.Module):
+    """Candidates of every step in, positions ``(B, T, 2)`` in metres out.
+
+    Parameters
+    ----------
+    search : int
+        Candidates per step proposed by the matcher and smoothed (:func:`candidate_features`).
+    k : int
+        Candidates per step the transformer attends over.
+    d, heads, layers, ff : transformer width, heads, encoder layers, feed-forward width.
+    dropout : float
+    """
+
+    def __init__(
+        self,
+        search: int = 256,
+        k: int = 48,
+        d: int = 64,
+        heads: int = 2,
+        layers: int = 2,
+        ff: int = 128,
+        dropout: float = 0.01,
+    ):
+        super().__init__()
+        if not 1 <= k <= search:
+            raise ValueError(f"need 1 <= k <= search (got k={k}, search={search})")
+        self.search, self.k, self.d = int(search), int(k), int(d)
+        n_post = 2 + len(STEP_SIGMAS)
+        self.embed = nn.Sequential(nn.Linear(4 + n_post, d), nn.ReLU(), nn.Linear(d, d))
+        self.rank = nn.Embedding(self.k, d)
+        layer = nn.TransformerEncoderLayer(d, heads, ff, dropout, batch_first=True)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="enable_nested_tensor is True")
+            self.encoder = nn.TransformerEncoder(layer, layers)
+        self.logit = nn.Linear(d, 1)
+        self.offset = nn.Linear(d, 2)
+        self.gate = nn.Linear(d, 1)
+        # Measured on the training trajectories by estimation.train (motion.fit, fit_fine).
+        self.motion = MotionTable()
+        self.motion_fine = MotionTable.lattice()
+        self.register_buffer("grid_step", torch.tensor(1.0))
+        # Start as the classical smoother: unit weight on the constant-velocity posterior, the
+        # learned terms at zero, the output the sub-cell smoother's, so training starts from it.
+        self.prior = nn.Parameter(torch.tensor([0.0] * (n_post - 1) + [1.0]))
+        for lin in (self.logit, self.offset, self.gate):
+            nn.init.zeros_(lin.weight)
+            nn.init.zeros_(lin.bias)
+
+    def fit_fine(self, positions: np.ndarray, grid_xy: np.ndarray) -> CandidateTransformer:
+        """Measure the sub-cell smoother's motion table on training trajectories ``positions
+        (n, L >= 3, 2)`` metres, snapped to the lattice of :func:`subcell_mean` over the grid points
+        ``grid_xy (G, 2)`` metres. Returns ``self``."""
+        grid_xy = np.asarray(grid_xy, dtype=np.float64)
+        steps = np.diff(np.unique(grid_xy[:, 0]))
+        spacing = float(steps.min()) if len(steps) else 1.0
+        u = (np.asarray(positions, dtype=np.float64) - grid_xy.min(0)) / spacing
+        self.motion_fine.fit(snap_to_lattice(u))
+        self.grid_step.fill_(spacing)
+        return self
+
+    def smoothed(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
+        """The classical estimate ``(B, T, 2)`` metres the network starts from: the sub-cell
+        smoother's (:func:`subcell_mean`) once the motion tables are measured, else the cell-level
+        constant-velocity posterior mean (``match-cv``)."""
+        if not bool(self.motion_fine.fitted):
+            return cell_mean(xy, post)
+        return subcell_mean(xy, post[..., 0], post[..., -1], self.motion_fine, float(self.grid_step))
+
+    def forward(self, xy: torch.Tensor, post: torch.Tensor, fine: torch.Tensor | None = None) -> torch.Tensor:
+        """``xy (B, T, k, 2)`` metres and ``post (B, T, k, P)`` from :func:`candidate_features`, and
+        the classical estimate ``fine (B, T, 2)`` metres (default :meth:`smoothed`) -> positions
+        ``(B, T, 2)`` metres."""
+        B, T, K, _ = xy.shape
+        if fine is None:
+            fine = self.smoothed(xy, post)
+        # Anchor: coordinate-wise median of the steps' best candidates, robust to an alias far away.
+        anchor = xy[:, :, 0].median(dim=1).values[:, None, None]
+        near = (xy - fine[:, :, None]) / _SCALE
+        feats = torch.cat([(xy - anchor) / _SCALE, near, post / 10.0], dim=-1)
+        h = self.embed(feats) + self.rank.weight[:K] + sinusoidal_encoding(torch.arange(T), self.d)[:, None]
+        h = self.encoder(h.reshape(B, T * K, self.d)).reshape(B, T, K, self.d)
+        logits = self.logit(h)[..., 0] + (post * self.prior).sum(-1)
+        w = torch.softmax(logits, dim=-1)  # (B, T, K)
+        cells = (w[..., None] * xy).sum(2)
+        # The network moves the classical estimate toward its own weighting of the candidates as
+        # far as it trusts that weighting (the gate), plus a small learned correction.
+        pooled = (w[..., None] * h).sum(2)
+        corr = torch.tanh((w[..., None] * self.offset(h)).sum(2))
+        return fine + self.gate(pooled) * (cells - fine) + corr

@@ -1,0 +1,32 @@
+"""The vocabularies of trajectory estimation, importable without torch (the CLI offers them)."""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+__all__ = [
+    "CLASSICAL_NAMES",
+    "ClassicalName",
+    "LOSSES",
+    "Loss",
+    "MODEL_NAMES",
+    "ModelName",
+    "TASKS",
+    "Task",
+]
+
+Task = Literal["tracking", "forecasting"]
+"""Tracking: positions of every observed step. Forecasting: the steps after the observed ones."""
+TASKS: tuple[Task, ...] = get_args(Task)
+
+Loss = Literal["mse", "rmse"]
+"""``mse``: the paper's, over all coordinates; ``rmse``: the mean per-trajectory RMSE."""
+LOSSES: tuple[Loss, ...] = get_args(Loss)
+
+ModelName = Literal["tn", "tn-match", "lstm", "gru", "rnn", "tcn", "conv1d"]
+"""The trainable networks (:data:`estimation.models.MODELS` holds their specifications)."""
+MODEL_NAMES: tuple[ModelName, ...] = get_args(ModelName)
+
+ClassicalName = Literal["knn-kalman", "match-cv"]
+"""The classical trackers, evaluated without training (:data:`estimation.evaluation.CLASSICAL`)."""
+CLASSICAL_NAMES: tuple[ClassicalName, ...] = get_args(ClassicalName)

@@ -1,0 +1,19 @@
+"""Smoothing of per-step fingerprint matches: Kalman (one match per step) and hidden-Markov (many
+candidates per step), with the motion densities the hidden-Markov smoothers score steps by."""
+
+from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
+from .kalman import kalman_forecast, rts_smoother
+from .motion import MixtureMotion, MotionTable, snap_to_lattice
+
+__all__ = [
+    "MixtureMotion",
+    "MotionTable",
+    "candidate_features",
+    "cell_mean",
+    "kalman_forecast",
+    "motion_posterior",
+    "rts_smoother",
+    "snap_to_lattice",
+    "subcell_mean",
+    "velocity_posterior",
+]

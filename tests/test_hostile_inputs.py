@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.helpers.scenes import write_scene_folder
 
 from mmwsim import faults
 from mmwsim.cli import main
 from mmwsim.dataset import generate_dataset as generate
 from mmwsim.locks import OutputLock, lock_path
 from mmwsim.trajectories import read_trajectories
+from tests.helpers.scenes import write_scene_folder
 
 REPO = Path(__file__).resolve().parents[1]
 # A data set that takes a fraction of a second: 5 x 5 receivers in 4 tiles over open ground.

@@ -146,6 +146,8 @@ def compute_tile(config_json: str, tile: int, plan=None) -> TileResult:
         )
     lo, hi = cfg.bins
     valid = outdoors & np.any(pdp[:, :, lo:hi] >= cfg.threshold_dbm, axis=(1, 2))
+    # The profiles above used every diffuse patch; the store keeps them merged per surface and bin.
+    paths = paths.merge_diffuse(1.0 / cfg.sample_rate)
     arrays = {
         "delay": paths.delay.astype(np.float64),
         "jones": paths.jones.astype(np.complex64),

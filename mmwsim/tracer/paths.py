@@ -165,6 +165,65 @@ class Paths:
         with np.errstate(divide="ignore"):
             return 20.0 * np.log10(np.abs(self.amplitude(tx_pol, rx_pol)))
 
+    def merge_diffuse(self, bin_width: float) -> Paths:
+        """The same paths with the diffuse contributions merged per receiver, surface triangle,
+        reflections before it and delay bin of ``bin_width`` seconds (for storage).
+
+        A merged contribution keeps the total power exactly for every transmit polarisation,
+        summed over receive polarisations: its Jones matrix is ``sqrtm(sum J^H J)``. Its delay,
+        directions and interaction points are power-weighted means, so a profile rebuilt from
+        merged paths with another antenna is close to, not equal to, one built from the patches.
+        """
+        diffuse = self.kind() == PathKind.DIFFUSE
+        if not diffuse.any():
+            return self
+        d = np.flatnonzero(diffuse)
+        bins = np.floor(self.delay[d] / bin_width).astype(np.int64)
+        keys = np.column_stack([self.rx_index[d], self.faces[d], bins])
+        _, group, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        group = group.ravel()
+        order = np.argsort(group, kind="stable")
+        d, group = d[order], group[order]
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        j = self.jones[d]
+        w = np.sum(np.abs(j) ** 2, axis=(1, 2))
+        gram = np.add.reduceat(np.conj(np.swapaxes(j, 1, 2)) @ j, starts, axis=0)
+        wsum = np.add.reduceat(w, starts)
+        wn = np.where(wsum[group] > 0, w / np.maximum(wsum[group], 1e-300), 1.0 / counts[group])
+
+        def mean(a: np.ndarray) -> np.ndarray:
+            return np.add.reduceat(np.nan_to_num(a) * wn.reshape((-1,) + (1,) * (a.ndim - 1)), starts, axis=0)
+
+        def direction(angles: np.ndarray) -> np.ndarray:
+            t, p = angles[:, 0], angles[:, 1]
+            v = mean(np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=1))
+            r = np.linalg.norm(v, axis=1)
+            return np.stack(
+                [np.arccos(np.clip(v[:, 2] / np.maximum(r, 1e-300), -1, 1)), np.arctan2(v[:, 1], v[:, 0])], 1
+            )
+
+        first = d[starts]
+        points = mean(self.points[d])
+        points[np.isnan(self.points[first])] = np.nan
+        merged = Paths(
+            self.tx, self.rx, self.frequency, self.rx_index[first], mean(self.length[d]), _psd_sqrt(gram),
+            direction(self.aod[d]), direction(self.aoa[d]), self.order[first], self.faces[first],
+            self.objects[first], points, self.types[first],
+        )  # fmt: skip
+        keep = self.select(~diffuse)
+        both = Paths.concatenate_same([keep, merged])
+        srt = np.lexsort((both.kind(), np.round(both.length, 9), both.rx_index))
+        return both.select(srt)
+
+    @staticmethod
+    def concatenate_same(parts: list[Paths]) -> Paths:
+        """Join path sets to the same receivers (same transmitter and receivers)."""
+        first = parts[0]
+        kw = {f.name: getattr(first, f.name) for f in fields(first)}
+        for name in _PER_PATH:
+            kw[name] = np.concatenate([getattr(p, name) for p in parts])
+        return Paths(**kw)
+
     def select_range(self, sl: slice) -> Paths:
         """The paths in the slice ``sl`` of the path axis (views, no copies), receivers unchanged."""
         kw = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -193,6 +252,13 @@ class Paths:
             rx_index=np.concatenate([p.rx_index + s for p, s in zip(parts, shift, strict=True)]),
             **{name: np.concatenate([getattr(p, name) for p in parts]) for name in _PER_PATH[1:]},
         )
+
+
+def _psd_sqrt(h: np.ndarray) -> np.ndarray:
+    """Square roots (m, 2, 2) of Hermitian positive semi-definite 2x2 matrices (closed form)."""
+    s = np.sqrt(np.maximum(np.real(h[:, 0, 0] * h[:, 1, 1] - h[:, 0, 1] * h[:, 1, 0]), 0.0))
+    t = np.sqrt(np.maximum(np.real(h[:, 0, 0] + h[:, 1, 1]) + 2.0 * s, 1e-300))
+    return (h + s[:, None, None] * np.eye(2)) / t[:, None, None]
 
 
 _PER_PATH = ("rx_index", "length", "jones", "aod", "aoa", "order", "faces", "objects", "points", "types")

@@ -37,10 +37,17 @@ from .paths import Interaction
 from .polarimetry import FaceMaterials, PathBatch
 from .reflectors import Reflectors
 from .specular import SpecularSolver, inside_box, mirror_chain, plane_point
+from .utd import ON_BOUNDARY, wedge_angles
 from .visibility import EPS
 from .wedges import Wedges
 
-__all__ = ["DiffractionStage", "DiffractionCandidates", "CONE_STEP"]
+__all__ = ["DiffractionStage", "DiffractionCandidates", "CONE_STEP", "BOUNDARIES"]
+
+BOUNDARIES = ("none", "incident +", "incident -", "0-face reflection", "n-face reflection")
+"""Shadow boundaries a diffracted ray may lie exactly on: incident (phi = phi' +- pi), 0-face
+reflection (phi = pi - phi') and n-face reflection (phi = (2n - 1) pi - phi')."""
+# Side of each boundary where its geometrical-optics partner exists: -1 at smaller phi, +1 at larger.
+LIT_SIDE = np.array([0.0, -1.0, 1.0, -1.0, 1.0])
 
 CONE_STEP = np.radians(1.0)
 """Angular step of the Keller-cone rays around the edge, radians."""
@@ -316,11 +323,36 @@ class DiffractionStage:
         offsets = w.bisector(wid)
         good, faces = self.solver.check(self.tx, rx[rx_p], points, order, types, refs, offsets)
         g = np.flatnonzero(good)
-        faces, wid, a_len = faces[g], wid[g], a_len[g]
+        faces, wid, a_len, points, order = faces[g], wid[g], a_len[g], points[g], order[g]
         faces[np.arange(len(g)), a_len] = w.face0[wid]
+        boundary = self._boundaries(points, order, a_len, wid, rx[rx_p[g]])
         return self.solver.finish(
-            self.tx, rx, rx_p[g], length[g], points[g], order[g], types[g], faces, wid, w
+            self.tx, rx, rx_p[g], length[g], points, order, types[g], faces, wid, w, boundary
         )
+
+    def _boundaries(self, points, order, a_len, wid, rx) -> np.ndarray:
+        """(m,) :data:`BOUNDARIES` code of the shadow boundary each path lies exactly on (0: none)."""
+        m = len(order)
+        idx = np.arange(m)
+        q = points[idx, a_len]
+        prev = np.where((a_len > 0)[:, None], points[idx, np.maximum(a_len - 1, 0)], self.tx)
+        nxt = np.where(
+            (a_len + 1 < order)[:, None], points[idx, np.minimum(a_len + 1, points.shape[1] - 1)], rx
+        )
+        w = self.wedges
+        phi_in, phi, n = wedge_angles(q - prev, nxt - q, w.edge[wid], w.t0[wid], w.n0[wid], w.tn[wid])
+        out = np.zeros(m, np.int8)
+        for code, eps in enumerate(
+            (
+                phi - phi_in - np.pi,
+                phi - phi_in + np.pi,
+                phi + phi_in - np.pi,
+                phi + phi_in - (2 * n - 1) * np.pi,
+            ),
+            1,
+        ):
+            out[(out == 0) & (np.abs(eps) <= ON_BOUNDARY)] = code
+        return out
 
 
 @njit(cache=True)

@@ -56,6 +56,11 @@ class PathBatch:
         Field transfer in the antennas' bases, spreading included.
     aod, aoa : (m, 2) float64
         Departure and arrival directions (zenith, azimuth), radians.
+    wedge : (m,) int64, optional
+        Wedge of each diffracted path.
+    boundary : (m,) int8, optional
+        Shadow boundary each diffracted path lies exactly on (:data:`~mmwsim.tracer.utd.BOUNDARIES`
+        code; 0 for none).
     """
 
     rx: np.ndarray
@@ -66,6 +71,8 @@ class PathBatch:
     jones: np.ndarray
     aod: np.ndarray
     aoa: np.ndarray
+    wedge: np.ndarray | None = None
+    boundary: np.ndarray | None = None
 
     @property
     def k(self) -> int:
@@ -85,7 +92,12 @@ class PathBatch:
 
     def select(self, mask: np.ndarray) -> PathBatch:
         """The paths where ``mask`` (m,) is true."""
-        return PathBatch(*(getattr(self, f)[mask] for f in PathBatch.__dataclass_fields__))
+        return PathBatch(
+            *(
+                None if getattr(self, f) is None else getattr(self, f)[mask]
+                for f in PathBatch.__dataclass_fields__
+            )
+        )
 
 
 @dataclass(frozen=True)
@@ -226,6 +238,7 @@ def path_fields(
     wedge: np.ndarray,
     wedges,
     materials: FaceMaterials,
+    nudge: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Field of every path from its interaction points, in the antennas' bases.
 
@@ -253,6 +266,8 @@ def path_fields(
         Wedge of the path's diffraction (-1 for none).
     wedges : Wedges or None
     materials : FaceMaterials
+    nudge : (m,) float, optional
+        Radians added to each diffraction angle (a side of an exact shadow boundary).
 
     Returns
     -------
@@ -287,6 +302,7 @@ def path_fields(
         np.asarray(faces, np.int64),
         np.ascontiguousarray(normals, np.float64),
         np.asarray(wedge, np.int64),
+        np.zeros(m) if nudge is None else np.asarray(nudge, np.float64),
         *wa,
         materials.owner,
         surf.eps,
@@ -307,7 +323,7 @@ def _spherical_rows(theta, phi):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def path_fields_into(
-    tx, rx, points, order, types, faces, normals, wedge,
+    tx, rx, points, order, types, faces, normals, wedge, nudge,
     w_edge, w_t0, w_n0, w_tn, w_nn, w_origin, w_n, w_face0, w_facen,
     owner, eps, thick, rough, wavelength, jones, angles,
 ):  # pragma: no cover - compiled  # fmt: skip
@@ -351,7 +367,7 @@ def path_fields_into(
                 diffraction_scalar(
                     k_in, k_out, row(w_edge, w), row(w_t0, w), row(w_n0, w), row(w_tn, w), row(w_nn, w),
                     s_in, s_out, wavelength, eps[o0], thick[o0], rough[o0], eps[on], thick[on], rough[on],
-                    r0, rn, step,
+                    r0, rn, step, nudge[i],
                 )  # fmt: skip
                 spread = wavelength / (4.0 * np.pi * np.sqrt(s_in * s_out * (s_in + s_out)))
             else:

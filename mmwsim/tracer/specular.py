@@ -93,8 +93,12 @@ class SpecularSolver:
     def finish(
         self, tx: np.ndarray, rx: np.ndarray, rx_p: np.ndarray, length: np.ndarray, points: np.ndarray,
         order: np.ndarray, types: np.ndarray, faces: np.ndarray, wedge: np.ndarray, wedges=None,
+        boundary: np.ndarray | None = None,
     ) -> list[PathBatch]:  # fmt: skip
-        """Fields of valid paths, the gain floor, and one batch per interaction count."""
+        """Fields of valid paths, the gain floor, and one batch per interaction count.
+
+        Diffracted paths (``wedges`` given) keep their ``wedge`` and ``boundary`` codes.
+        """
         refl = self.reflectors
         refs = np.where(faces >= 0, refl.face_reflector[np.maximum(faces, 0)], 0)
         jones, aod, aoa = path_fields(
@@ -106,9 +110,10 @@ class SpecularSolver:
             m = keep & (order == k)
             out.append(
                 PathBatch(
-                    rx_p[m], length[m], points[m, :k], faces[m, :k], types[m, :k], jones[m], aod[m], aoa[m]
+                    rx_p[m], length[m], points[m, :k], faces[m, :k], types[m, :k], jones[m], aod[m], aoa[m],
+                    wedge[m] if wedges is not None else None, boundary[m] if boundary is not None else None,
                 )
-            )
+            )  # fmt: skip
         return out
 
     # ------------------------------------------------------------------ paths

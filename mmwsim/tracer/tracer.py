@@ -26,13 +26,14 @@ from ..errors import MmwsimError
 from ..scene import Scene
 from ..stages import STAGES
 from .cells import CandidateCells, CellLattice, LegSet, mark_cells
-from .diffraction import CONE_STEP, DiffractionStage
+from .diffraction import CONE_STEP, LIT_SIDE, DiffractionStage
 from .diffuse import DiffuseStage
-from .paths import Paths
-from .polarimetry import FaceMaterials, PathBatch
+from .paths import Interaction, Paths
+from .polarimetry import FaceMaterials, PathBatch, path_fields
 from .reflectors import Reflectors, group_reflectors
 from .shooting import Shot, shoot
 from .specular import SpecularSolver, mirror_chain
+from .utd import ON_BOUNDARY
 from .wedges import Wedges, find_wedges
 
 __all__ = ["Tracer", "TracerPlan", "trace", "DEFAULT_RAYS", "MIN_GAIN_DB"]
@@ -345,6 +346,7 @@ class Tracer:
                 with STAGES("diffuse"):
                     batches += self.diffuse.solve(rx)
         with STAGES("exact solve"):
+            self._settle_boundaries(rx, batches)
             return self._assemble(rx, batches)
 
     # ------------------------------------------------------------------ receivers vs candidates
@@ -384,6 +386,50 @@ class Tracer:
             with STAGES("candidate cells"):
                 self._cell_cache[key] = mark_cells(leg_set, len(self.shot.sequences[k]), lattice)
         return self._cell_cache[key]
+
+    def _settle_boundaries(self, rx: np.ndarray, batches: list[PathBatch]) -> None:
+        """Diffracted paths exactly on a shadow boundary take the one-sided limit of the side their
+        geometrical-optics partner was found on.
+
+        There the UTD coefficient is the mean of its two one-sided limits, which is right only with
+        the partner weighted 1/2. Whether Embree keeps a ray that grazes an edge exactly is a matter
+        of float32 rounding; so the partner (the path with the same reflections, plus the face's
+        reflection for a reflection boundary) is looked up, and the coefficient is taken on its
+        side if it was found (total: partner + lit-side limit) and on the other side if not (total:
+        shadow-side limit), both equal to the mean plus half the partner.
+        """
+        flagged = [
+            (b, np.flatnonzero(b.boundary)) for b in batches if b.boundary is not None and b.boundary.any()
+        ]
+        if not flagged:
+            return
+        fr = self.reflectors.face_reflector
+        targets = set(int(r) for b, i in flagged for r in b.rx[i])
+        present = set()
+        for b in batches:
+            if b.wedge is not None or not len(b):
+                continue
+            for j in np.flatnonzero(np.isin(b.rx, list(targets))):
+                present.add((int(b.rx[j]), tuple(fr[b.faces[j]].tolist())))
+        w = self.wedges
+        for b, i in flagged:
+            nudge = np.zeros(len(i))
+            for n, j in enumerate(i):
+                d = int(np.flatnonzero(b.types[j] == Interaction.DIFFRACTION)[0])
+                refs = fr[b.faces[j]].tolist()
+                code = int(b.boundary[j])
+                mid = (
+                    [] if code <= 2 else [int(fr[w.face0[b.wedge[j]] if code == 3 else w.facen[b.wedge[j]]])]
+                )
+                twin = (int(b.rx[j]), tuple(refs[:d] + mid + refs[d + 1 :]))
+                nudge[n] = (1.0 if twin in present else -1.0) * LIT_SIDE[code] * 4.0 * ON_BOUNDARY
+            refl = self.reflectors
+            normals = refl.normal[np.where(b.faces[i] >= 0, fr[np.maximum(b.faces[i], 0)], 0)]
+            order = np.full(len(i), b.k, np.int64)
+            b.jones[i], _, _ = path_fields(
+                self.tx, rx[b.rx[i]], b.points[i], order, b.types[i], b.faces[i], normals, b.wedge[i], w,
+                self.materials, nudge,
+            )  # fmt: skip
 
     # ------------------------------------------------------------------ assembly
     def _assemble(self, rx: np.ndarray, batches: list[PathBatch]) -> Paths:

@@ -302,17 +302,19 @@ def _reflection_2x2(
 @njit(cache=True)
 def diffraction_scalar(
     k_in, k_out, e, t0, n0, tn, nn, s_in, s_out, wavelength,
-    eps0, thick0, rough0, epsn, thickn, roughn, r0, rn, out,
+    eps0, thick0, rough0, epsn, thickn, roughn, r0, rn, out, nudge=0.0,
 ):  # pragma: no cover - compiled  # fmt: skip
     """:func:`diffraction_matrices` of one diffraction point into ``out`` (3, 3) complex.
 
-    ``r0``, ``rn`` (2, 2) complex are work arrays.
+    ``r0``, ``rn`` (2, 2) complex are work arrays. ``nudge`` (radians) is added to the
+    diffraction angle ``phi``: a ray exactly on a shadow boundary takes the one-sided limit
+    of the side its geometrical-optics partner is on (see ``Tracer``).
     """
     k = 2.0 * np.pi / wavelength
     e = unit(e)
     n = _wedge_n(t0, tn)
     phi_in = _angle(scale(k_in, -1.0), e, t0, n0, n)
-    phi_out = _angle(k_out, e, t0, n0, n)
+    phi_out = _angle(k_out, e, t0, n0, n) + nudge
     ce = dot(k_in, e)
     sin2 = max(1.0 - ce * ce, 0.0)
     ratio = 1.0 if np.isinf(s_in) else s_in / (s_in + s_out)

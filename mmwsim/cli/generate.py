@@ -29,7 +29,12 @@ def register(sub) -> None:
         metavar="S",
         help="diffuse scattering: set the scattering coefficient S (0..1) of every material for this run",
     )
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="local worker processes (default: one per available core, at most 4)",
+    )
     p.add_argument("--resume", action="store_true", help="continue an unfinished run of the same config")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run tiles on this Dask scheduler")
     p.add_argument("--rrd", metavar="FILE", help="also write a Rerun recording (.rrd) of the data set")
@@ -40,6 +45,17 @@ def register(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_area_arguments(p)
     p.set_defaults(func=_generate)
+
+
+def default_workers() -> int:
+    """One worker per core this process may run on, at most 4 (each holds a tile, about 1 GB)."""
+    import os
+
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, 4))
 
 
 def _default_out(scene: str) -> str:
@@ -65,7 +81,7 @@ def _generate(args) -> int:
         out,
         spacing=args.spacing,
         max_reflections=args.max_reflections,
-        workers=args.workers,
+        workers=args.workers if args.workers is not None else default_workers(),
         resume=args.resume,
         scheduler=args.scheduler,
         rrd=args.rrd,

@@ -13,9 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from .._jit import njit
 from ..constants import DEFAULT_FREQUENCY, SPEED_OF_LIGHT
 from ..errors import MmwsimError
-from .patterns import Isotropic, Pattern, PyramidalHorn, horn_fields
+from .patterns import Isotropic, Pattern, PyramidalHorn, _cosine_aperture, _uniform_aperture, horn_fields
 from .spherical import FieldFromBasis
 
 __all__ = ["Codebook", "RotatingHorn", "PlanarArrayCodebook", "make_codebook"]
@@ -83,6 +84,23 @@ class RotatingHorn(Codebook):
     def field_basis(self, r, th, ph):
         return horn_fields(self.horns, r, th, ph)
 
+    def field(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """(n_beams, ..., 2) complex128 fields of every beam towards (theta, phi), radians.
+
+        The beams are one horn turned in azimuth: its pattern in terms of the angle
+        ``phi - azimuth`` (and the common elevation), with the next beam's angle reached by an
+        angle-addition step instead of new trigonometry (the same pattern as
+        :meth:`field_basis`, to rounding).
+        """
+        theta, phi = np.broadcast_arrays(np.asarray(theta, np.float64), np.asarray(phi, np.float64))
+        h = self.horns[0]
+        out = np.empty((self.n_beams, theta.size, 2), np.complex128)
+        _rotating_fields_into(
+            np.ascontiguousarray(theta).reshape(-1), np.ascontiguousarray(phi).reshape(-1), self.azimuth0,
+            self.step, h._amp, 0.5 * h.k * h.width, 0.5 * h.k * h.height, self.elevation, out,
+        )  # fmt: skip
+        return out.reshape((self.n_beams,) + theta.shape + (2,))
+
     def describe(self) -> dict[str, Any]:
         h = self.horns[0]
         return {
@@ -93,6 +111,27 @@ class RotatingHorn(Codebook):
             "azimuth0_deg": float(np.degrees(self.azimuth0)),
             "aperture_m": [h.width, h.height],
         }
+
+
+@njit(cache=True)
+def _rotating_fields_into(theta, phi, az0, step, amp0, half_kw, half_kh, elev, out):  # pragma: no cover
+    # With c, s = cos, sin(phi - azimuth) of a beam and the horn's E- and H-plane axes e, h:
+    # r.h = st s, r.e = se st c - ce ct, th.e = se ct c + ce st, th.h = ct s, ph.e = -se s, ph.h = c.
+    se, ce = np.sin(elev), np.cos(elev)
+    cs, sn = np.cos(step), np.sin(step)
+    for i in range(len(theta)):
+        st, ct = np.sin(theta[i]), np.cos(theta[i])
+        c, s = np.cos(phi[i] - az0), np.sin(phi[i] - az0)
+        uf = _uniform_aperture(-half_kh * ct) if se == 0.0 else 0.0
+        for b in range(out.shape[0]):
+            if se != 0.0:
+                uf = _uniform_aperture(half_kh * (se * st * c - ce * ct))
+            amp = amp0 * _cosine_aperture(half_kw * st * s) * uf
+            e_th = 0.5 * (se * ct * c + ce * st + c)
+            e_ph = 0.5 * (-se * s - ct * s)
+            out[b, i, 0] = amp * e_th
+            out[b, i, 1] = amp * e_ph
+            c, s = c * cs + s * sn, s * cs - c * sn  # next beam: the angle phi - azimuth falls by a step
 
 
 class PlanarArrayCodebook(Codebook):

@@ -18,7 +18,6 @@ import numpy as np
 
 from .._jit import njit
 from ..antennas import Codebook, Isotropic, Pattern
-from ..antennas.spherical import spherical_basis
 from ..constants import N_BINS, RX_GAIN_DBI, SAMPLE_RATE, TX_POWER_DBM
 from ..errors import MmwsimError
 from ..tracer.paths import PathKind, Paths
@@ -60,6 +59,13 @@ def beam_amplitudes(paths: Paths, codebook: Codebook, rx_pattern: Pattern | None
     (n_beams, n_paths) complex128
         Square root of the power ratio P_rx / P_tx, with phase.
     """
+    tx_field, v = _factors(paths, codebook, rx_pattern)
+    return tx_field[..., 0] * v[:, 0] + tx_field[..., 1] * v[:, 1]
+
+
+def _factors(paths: Paths, codebook: Codebook, rx_pattern: Pattern | None) -> tuple[np.ndarray, np.ndarray]:
+    """The two factors of :func:`beam_amplitudes`: transmit fields (n_beams, n, 2) and ``rx^T J`` with
+    the propagation phase (n, 2); the amplitude is their product summed over the last axis."""
     freq = getattr(codebook, "frequency", paths.frequency)
     if abs(freq - paths.frequency) > 1e-9 * paths.frequency:
         raise MmwsimError(
@@ -67,12 +73,11 @@ def beam_amplitudes(paths: Paths, codebook: Codebook, rx_pattern: Pattern | None
         )
     rx_pattern = rx_pattern if rx_pattern is not None else receive_pattern()
     if paths.n_paths == 0:
-        return np.zeros((codebook.n_beams, 0), dtype=np.complex128)
+        return np.zeros((codebook.n_beams, 0, 2), dtype=np.complex128), np.zeros((0, 2), np.complex128)
     rx_field = rx_pattern.field(paths.aoa[:, 0], paths.aoa[:, 1])  # (n, 2)
     v = np.einsum("pi,pij->pj", rx_field, paths.jones)  # rx^T J, (n, 2)
     v *= np.exp(-2j * np.pi * paths.frequency * paths.delay)[:, None]
-    tx_field = codebook.field_basis(*spherical_basis(paths.aod[:, 0], paths.aod[:, 1]))  # (n_beams, n, 2)
-    return tx_field[..., 0] * v[:, 0] + tx_field[..., 1] * v[:, 1]
+    return codebook.field(paths.aod[:, 0], paths.aod[:, 1]), v
 
 
 def channel_taps(
@@ -104,8 +109,8 @@ def channel_taps(
     h = np.zeros((paths.n_rx, amplitudes.shape[0], n_bins), np.complex128)
     power = np.zeros(h.shape)
     _bin_into(
-        h, power, paths.rx_index, paths.delay * sample_rate, np.ascontiguousarray(amplitudes),
-        np.zeros(paths.n_paths, np.bool_), band_limited, SINC_TAPS,
+        h, power, paths.rx_index, paths.delay * sample_rate, np.ascontiguousarray(amplitudes)[..., None],
+        np.ones((paths.n_paths, 1), np.complex128), np.zeros(paths.n_paths, np.bool_), band_limited, SINC_TAPS,
     )  # fmt: skip
     return h
 
@@ -158,13 +163,15 @@ def power_delay_profile(
         power = np.zeros(h.shape)
         for a in range(offsets[r0], offsets[r1], _PATH_CHUNK):
             sl = slice(a, min(a + _PATH_CHUNK, offsets[r1]))
-            amps = beam_amplitudes(paths.select_range(sl), codebook, rx_pattern)
-            _bin_into(h, power, paths.rx_index[sl] - r0, x[sl], amps, incoherent[sl], band_limited, SINC_TAPS)
+            tx_field, v = _factors(paths.select_range(sl), codebook, rx_pattern)
+            _bin_into(
+                h, power, paths.rx_index[sl] - r0, x[sl], tx_field, v, incoherent[sl], band_limited, SINC_TAPS
+            )
         _to_dbm(h, power, float(tx_power_dbm), out[r0:r1])
     return out
 
 
-_RX_BLOCK = 256  # receivers whose complex profiles are accumulated at once (about 1 MB each)
+_RX_BLOCK = 32  # receivers whose complex profiles are accumulated at once (about 1 MB each)
 _PATH_CHUNK = 1 << 15  # paths whose beam amplitudes are held at once (about 1 kB each)
 
 
@@ -174,8 +181,9 @@ def _check_sampling(sample_rate: float, n_bins: int) -> None:
 
 
 @njit(cache=True)
-def _bin_into(h, power, rx, x, amps, incoherent, band_limited, taps):  # pragma: no cover - compiled
-    """Add each path's beam amplitudes into its receiver's bins (coherently, or in power)."""
+def _bin_into(h, power, rx, x, tx_field, v, incoherent, band_limited, taps):  # pragma: no cover - compiled
+    """Add each path's beam amplitudes ``sum_c tx_field[b, p, c] v[p, c]`` into its receiver's bins
+    (coherently, or in power)."""
     n_beams, n_bins = h.shape[1], h.shape[2]
     for p in range(len(rx)):
         r = rx[p]
@@ -184,7 +192,10 @@ def _bin_into(h, power, rx, x, amps, incoherent, band_limited, taps):  # pragma:
         for k in range(max(lo, 0), min(hi, n_bins - 1) + 1):
             w = np.sinc(k + 0.5 - x[p]) if band_limited else 1.0
             for b in range(n_beams):
-                a = amps[b, p] * w
+                a = 0.0j
+                for c in range(v.shape[1]):
+                    a += tx_field[b, p, c] * v[p, c]
+                a *= w
                 if incoherent[p]:
                     power[r, b, k] += a.real * a.real + a.imag * a.imag
                 else:

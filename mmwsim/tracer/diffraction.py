@@ -37,7 +37,7 @@ from .paths import Interaction
 from .polarimetry import FaceMaterials, PathBatch
 from .reflectors import Reflectors
 from .specular import SpecularSolver, inside_box, mirror_chain, plane_point
-from .utd import ON_BOUNDARY, wedge_angles
+from .utd import ON_BOUNDARY
 from .visibility import EPS
 from .wedges import Wedges
 
@@ -299,13 +299,20 @@ class DiffractionStage:
         ok = np.zeros(len(cand_p), bool)
         points = np.zeros((len(cand_p), k, 3))
         length = np.zeros(len(cand_p))
+        boundary = np.zeros(len(cand_p), np.int8)
         _geometry(
             cand_p, rx_p, rx, self.tx, c.pre, c.post, c.pre_len, c.post_len, c.wedge, self._src_imgs,
             w.origin, w.edge, w.length, w.t0, w.n0, w.n, refl.normal, refl.offset, refl.lo, refl.hi,
-            ok, points, length,
+            ok, points, length, boundary,
         )  # fmt: skip
         idx = np.flatnonzero(ok)
-        cand_p, rx_p, points, length = cand_p[idx], rx_p[idx], points[idx], length[idx]
+        cand_p, rx_p, points, length, boundary = (
+            cand_p[idx],
+            rx_p[idx],
+            points[idx],
+            length[idx],
+            boundary[idx],
+        )
         a_len, b_len, wid = c.pre_len[cand_p], c.post_len[cand_p], c.wedge[cand_p]
         order = a_len + 1 + b_len
         n = len(idx)
@@ -325,48 +332,24 @@ class DiffractionStage:
         g = np.flatnonzero(good)
         faces, wid, a_len, points, order = faces[g], wid[g], a_len[g], points[g], order[g]
         faces[np.arange(len(g)), a_len] = w.face0[wid]
-        boundary = self._boundaries(points, order, a_len, wid, rx[rx_p[g]])
         return self.solver.finish(
-            self.tx, rx, rx_p[g], length[g], points, order, types[g], faces, wid, w, boundary
+            self.tx, rx, rx_p[g], length[g], points, order, types[g], faces, wid, w, boundary[g]
         )
-
-    def _boundaries(self, points, order, a_len, wid, rx) -> np.ndarray:
-        """(m,) :data:`BOUNDARIES` code of the shadow boundary each path lies exactly on (0: none)."""
-        m = len(order)
-        idx = np.arange(m)
-        q = points[idx, a_len]
-        prev = np.where((a_len > 0)[:, None], points[idx, np.maximum(a_len - 1, 0)], self.tx)
-        nxt = np.where(
-            (a_len + 1 < order)[:, None], points[idx, np.minimum(a_len + 1, points.shape[1] - 1)], rx
-        )
-        w = self.wedges
-        phi_in, phi, n = wedge_angles(q - prev, nxt - q, w.edge[wid], w.t0[wid], w.n0[wid], w.tn[wid])
-        out = np.zeros(m, np.int8)
-        for code, eps in enumerate(
-            (
-                phi - phi_in - np.pi,
-                phi - phi_in + np.pi,
-                phi + phi_in - np.pi,
-                phi + phi_in - (2 * n - 1) * np.pi,
-            ),
-            1,
-        ):
-            out[(out == 0) & (np.abs(eps) <= ON_BOUNDARY)] = code
-        return out
 
 
 @njit(cache=True)
 def _geometry(
     cand_p, rx_p, rx, tx, pre, post, pre_len, post_len, wedge, src_imgs,
     w_origin, w_edge, w_length, w_t0, w_n0, w_n, normal, offset, lo, hi,
-    ok, points, length,
+    ok, points, length, boundary,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Diffraction point and reflection points of every (candidate, receiver) pair.
 
     Sets ``ok`` where the diffraction point lies on the edge, both ends are in the wedge's
     exterior, and every reflection point lies inside its segment and its reflector's
     bounds; ``points`` gets [reflections before, Q, reflections after] and ``length`` the
-    unfolded length. Blockage is checked afterwards with Embree.
+    unfolded length, ``boundary`` the :data:`BOUNDARIES` code of a shadow boundary the
+    diffracted ray lies exactly on. Blockage is checked afterwards with Embree.
     """
     t = (float(tx[0]), float(tx[1]), float(tx[2]))
     for i in range(len(cand_p)):
@@ -446,6 +429,18 @@ def _geometry(
             continue
         ok[i] = True
         length[i] = s_in + s_out
+        for code in range(1, 5):
+            if code == 1:
+                eps = phi_out - phi_in - np.pi
+            elif code == 2:
+                eps = phi_out - phi_in + np.pi
+            elif code == 3:
+                eps = phi_out + phi_in - np.pi
+            else:
+                eps = phi_out + phi_in - (2.0 * w_n[w] - 1.0) * np.pi
+            if abs(eps) <= ON_BOUNDARY:
+                boundary[i] = code
+                break
 
 
 def _distance_to_segment(

@@ -81,10 +81,8 @@ def read_receivers(path: str | os.PathLike) -> np.ndarray:
 
 
 def _run(args) -> int:
-    from ..recording import Recording, log_scene
     from ..scene import load_scene
     from ..tracer import DEFAULT_RAYS, Tracer
-    from ..tracer.record import log_candidates, log_paths, log_scene_wedges
     from . import parse_vector
 
     tx = np.array(parse_vector(args.tx, 3, "--tx")) if args.tx else None
@@ -140,6 +138,10 @@ def _run(args) -> int:
         _write_json(Path(args.json), paths, names)
         print(f"wrote {args.json}")
     if args.rrd:
+        # Rerun is loaded only when a recording is asked for.
+        from ..recording import Recording, log_scene
+        from ..tracer.record import log_candidates, log_paths, log_scene_wedges
+
         with Recording(
             args.rrd,
             "trace",

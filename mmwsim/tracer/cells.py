@@ -175,29 +175,48 @@ def mark_cells(legs: LegSet, n_cand: int, lattice: CellLattice) -> CandidateCell
     empty = CandidateCells(lattice, np.zeros(lattice.n_cells + 1, np.int64), np.zeros(0, np.int64))
     if len(legs) == 0 or n_cand == 0:
         return empty
-    order = _counting_order(legs.cand.astype(np.int64), n_cand)
-    keys = _mark(
-        order,
-        legs.cand.astype(np.int64),
-        n_cand,
-        np.ascontiguousarray(legs.start, np.float64),
-        np.ascontiguousarray(legs.direction, np.float64),
-        legs.length.astype(np.float64),
-        legs.gap0.astype(np.float64),
-        legs.slope.astype(np.float64),
-        lattice.origin[0],
-        lattice.origin[1],
-        lattice.size,
-        nx,
-        ny,
-        lattice.z_range[0],
-        lattice.z_range[1],
-    )
+    cand = legs.cand.astype(np.int64)
+    order = _counting_order(cand, n_cand)
+    args = (
+        cand, n_cand, np.ascontiguousarray(legs.start), np.ascontiguousarray(legs.direction), legs.length,
+        legs.gap0, legs.slope, lattice.origin[0], lattice.origin[1], lattice.size, nx, ny, *lattice.z_range,
+    )  # fmt: skip
+    # Candidates split in two halves marked on two threads (the kernel runs without the GIL);
+    # each candidate's legs stay in one half, so the halves mark disjoint keys.
+    parts = _halves(order, cand) if len(order) > _THREADED and _cores() > 1 else [order]
+    if len(parts) == 1:
+        keys = _mark(parts[0], *args)
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(len(parts)) as pool:
+            keys = np.concatenate(list(pool.map(lambda o: _mark(o, *args), parts)))
     # keys = cell * n_cand + cand: one sort groups them by cell with candidates ascending.
     keys.sort()
     cell = keys // n_cand
     cell_start = np.searchsorted(cell, np.arange(lattice.n_cells + 1)).astype(np.int64)
     return CandidateCells(lattice, cell_start, keys % n_cand)
+
+
+_THREADED = 1 << 18  # legs above which the marking is split over two threads
+
+
+def _cores() -> int:
+    import os
+
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def _halves(order: np.ndarray, cand: np.ndarray) -> list[np.ndarray]:
+    """``order`` (legs sorted by candidate) cut in two near its middle, at a change of candidate."""
+    c = cand[order]
+    m = int(np.searchsorted(c, c[len(c) // 2], side="left"))
+    if m == 0:
+        m = int(np.searchsorted(c, c[len(c) // 2], side="right"))
+    return [order[:m], order[m:]] if 0 < m < len(order) else [order]
 
 
 @njit(cache=True)

@@ -549,7 +549,8 @@ def _record(
 
     from .dataset.record import log_dataset, log_fingerprint_steps
     from .recording import FAMILIES, Recording
-    from .tracer.record import log_paths
+    from .tracer.record import log_path_context, log_paths
+    from .tracer.wedges import find_wedges
 
     data, chosen = trained.sets[est.split], planned.chosen
     true = data.positions[chosen].astype(np.float64)
@@ -561,7 +562,9 @@ def _record(
         # Scene, beam patterns, coverage per beam, and PDP / one fingerprint at the receivers along
         # the trajectory.
         log_dataset(rec, ds, receivers=visited, scene=scene, seed=cfg.seed)
-        log_paths(rec, ds.paths(grid_index))
+        shown_paths = ds.paths(grid_index)
+        log_paths(rec, shown_paths)
+        log_path_context(rec, shown_paths, find_wedges(scene))
         # The fingerprints the model saw, step by step.
         ident = int(est.ids[chosen])
         log_fingerprint_steps(

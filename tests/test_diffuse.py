@@ -126,3 +126,37 @@ def test_generate_with_diffuse_stores_the_setting_and_adds_power(tmp_path):
     paths = rough.paths(np.flatnonzero(rough.outdoors)[:5])
     assert (paths.kind() == PathKind.DIFFUSE).any()
     assert not (plain.paths(np.flatnonzero(plain.outdoors)[:5]).kind() == PathKind.DIFFUSE).any()
+
+
+def test_trace_recording_shows_wedges_and_diffuse_tiles(tmp_path):
+    from mmwsim.cli import main
+    from tests.helpers.rrd import check_blueprint, entity_rows
+
+    toml = tmp_path / "scene.toml"
+    toml.write_text(
+        "\n".join(
+            [
+                'name = "rough"',
+                "[materials.concrete]",
+                "scattering_coefficient = 0.4",
+                "[[objects]]",
+                'name = "ground"',
+                'mesh = "ground.ply"',
+                'material = "concrete"',
+                'kind = "ground"',
+                "[[objects]]",
+                'name = "block"',
+                'mesh = "block.ply"',
+                'material = "concrete"',
+                "[transmitter]",
+                "position = [0.0, 0.0, 10.0]",
+            ]
+        )
+    )
+    ground_mesh(-80, -80, 80, 80).export(tmp_path / "ground.ply")
+    building_mesh([Building(20, -10, 40, 10, 15.0)]).export(tmp_path / "block.ply")
+    rrd = tmp_path / "t.rrd"
+    assert main(["trace", str(toml), "--rx", "60,0,1.5", "--rx", "10,40,1.5", "--rrd", str(rrd)]) == 0
+    rows = entity_rows(rrd)
+    assert rows["/world/scene/wedges"] >= 1 and rows["/world/rays/diffuse_tiles"] >= 1
+    check_blueprint(rrd, ["Scene", "Config"])

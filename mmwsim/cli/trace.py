@@ -140,7 +140,7 @@ def _run(args) -> int:
     if args.rrd:
         # Rerun is loaded only when a recording is asked for.
         from ..recording import Recording, log_scene
-        from ..tracer.record import log_candidates, log_paths, log_scene_wedges
+        from ..tracer.record import log_candidates, log_path_context, log_paths
 
         with Recording(
             args.rrd,
@@ -158,7 +158,7 @@ def _run(args) -> int:
             log_scene(rec, scene)
             shown = np.arange(min(len(rx), _TABLE_LIMIT))
             log_paths(rec, paths, shown)
-            log_scene_wedges(rec, tracer, paths.select(np.isin(paths.rx_index, shown)))
+            log_path_context(rec, paths.select(np.isin(paths.rx_index, shown)), tracer.wedges)
             log_candidates(rec, tracer)
         print(f"wrote {args.rrd}")
     return 0

@@ -16,7 +16,7 @@ __all__ = [
     "log_paths",
     "log_candidates",
     "log_wedges",
-    "log_scene_wedges",
+    "log_path_context",
     "log_diffuse_tiles",
     "path_classes",
 ]
@@ -120,15 +120,23 @@ def log_candidates(rec: Recording, tracer: Tracer) -> int:
     return len(strips)
 
 
-def log_scene_wedges(rec: Recording, tracer: Tracer, paths: Paths) -> int:
-    """The tracer's wedges (:func:`log_wedges`), highlighting those the diffracted ``paths`` use."""
-    if tracer.wedges is None or not tracer.wedges.count:
-        return 0
-    diff = paths.types == Interaction.DIFFRACTION
-    used = np.zeros(tracer.wedges.count, bool)
-    at = tracer.wedges.locate(paths.points[diff])
-    used[at[at >= 0]] = True
-    return log_wedges(rec, tracer.wedges.segments(), used)
+def log_path_context(rec: Recording, paths: Paths, wedges=None, tx_power_dbm: float = 30.0) -> None:
+    """What the recorded ``paths`` interact with beyond faces: the scene's wedges (:func:`log_wedges`),
+    those the diffracted paths use highlighted, and the diffuse tiles (:func:`log_diffuse_tiles`)
+    with the power each sends to its receiver (isotropic antennas, ``tx_power_dbm``)."""
+    if wedges is not None and wedges.count:
+        used = np.zeros(wedges.count, bool)
+        at = wedges.locate(paths.points[paths.types == Interaction.DIFFRACTION])
+        used[at[at >= 0]] = True
+        log_wedges(rec, wedges.segments(), used)
+    diffuse = np.flatnonzero(paths.kind() == PathKind.DIFFUSE)
+    if len(diffuse):
+        last = paths.order[diffuse].astype(np.int64) - 1
+        power = np.sum(np.abs(paths.jones[diffuse]) ** 2, axis=(1, 2)) / 2.0
+        with np.errstate(divide="ignore"):
+            dbm = tx_power_dbm + 10.0 * np.log10(power)
+        ok = np.isfinite(dbm)
+        log_diffuse_tiles(rec, paths.points[diffuse, last][ok], dbm[ok])
 
 
 def log_wedges(rec: Recording, segments: np.ndarray, used: np.ndarray) -> int:

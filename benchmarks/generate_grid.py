@@ -18,22 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-
-def raw_embree_rate(n: int = 2_000_000) -> float:
-    """Rays per second of one bare embreex intersect call on the default scene."""
-    import scenes
-
-    scene = scenes.load("default")
-    rng = np.random.default_rng(0)
-    d = rng.normal(size=(n, 3)).astype(np.float32)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    o = np.tile(scene.transmitter.array.astype(np.float32), (n, 1))
-    caster = scene.ray_caster
-    t = time.perf_counter()
-    caster._scene.run(o, d, output=1)
-    return n / (time.perf_counter() - t)
+from _common import raw_embree_rate
 
 
 def main() -> None:
@@ -45,11 +30,12 @@ def main() -> None:
     ap.add_argument("--diffuse", type=float, default=None)
     ap.add_argument("--out", help="store directory (default: a temporary one, removed afterwards)")
     args = ap.parse_args()
+    import scenes
     from mmwsim.dataset import Dataset
     from mmwsim.dataset.generate import generate
     from mmwsim.stages import STAGES
 
-    raw = raw_embree_rate()
+    raw = raw_embree_rate(scenes.load("default"))
     tmp = None if args.out else Path(tempfile.mkdtemp(prefix="mmwsim-bench-"))
     out = Path(args.out) if args.out else tmp / "default.zarr"
     STAGES.take()

@@ -18,6 +18,7 @@ import resource
 import time
 
 import numpy as np
+from _common import raw_embree_rate
 
 import scenes
 from mmwsim.stages import STAGES
@@ -28,18 +29,6 @@ KINDS = ("line of sight", "reflected", "diffracted", "diffuse")
 
 def peak_rss_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
-
-
-def raw_embree_rate(scene, n: int = 2_000_000) -> float:
-    """Rays per second of one bare embreex intersect call (float32 arrays prepared beforehand)."""
-    rng = np.random.default_rng(0)
-    d = rng.normal(size=(n, 3)).astype(np.float32)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    o = np.tile(scene.transmitter.array.astype(np.float32), (n, 1))
-    caster = scene.ray_caster
-    t = time.perf_counter()
-    caster._scene.run(o, d, output=1)
-    return n / (time.perf_counter() - t)
 
 
 def brute_force_missed(tracer: Tracer, paths: Paths, rx_idx: np.ndarray) -> tuple[int, int]:

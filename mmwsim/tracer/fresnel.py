@@ -234,8 +234,11 @@ def reflection_scalar(eps: complex, thickness: float, roughness: float, cos_thet
 
 
 @njit(cache=True)
-def bounce_scalar(k_in, k_out, normal, r_te, r_tm, out):  # pragma: no cover - compiled
-    """:func:`~bounce_matrices` of one bounce into ``out`` (3, 3) complex."""
+def sp_basis(k_in, k_out, normal):  # pragma: no cover - compiled
+    """Unit ``(e_s, e_p,in, e_p,out)`` 3-tuples of a bounce off a plane with unit ``normal``.
+
+    ``e_s`` is perpendicular to the plane of incidence (TE), ``e_p = k x e_s`` on each side (TM).
+    """
     e_s = cross(k_in, normal)
     ns = norm(e_s)
     if ns < 1e-9:
@@ -244,8 +247,13 @@ def bounce_scalar(k_in, k_out, normal, r_te, r_tm, out):  # pragma: no cover - c
         e_s = cross(alt, normal)
         ns = norm(e_s)
     e_s = scale(e_s, 1.0 / ns)
-    e_pi = cross(k_in, e_s)
-    e_po = cross(k_out, e_s)
+    return e_s, cross(k_in, e_s), cross(k_out, e_s)
+
+
+@njit(cache=True)
+def bounce_scalar(k_in, k_out, normal, r_te, r_tm, out):  # pragma: no cover - compiled
+    """:func:`~bounce_matrices` of one bounce into ``out`` (3, 3) complex."""
+    e_s, e_pi, e_po = sp_basis(k_in, k_out, normal)
     for a in range(3):
         for b in range(3):
             out[a, b] = r_te * e_s[a] * e_s[b] + r_tm * e_po[a] * e_pi[b]

@@ -65,8 +65,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import njit
-from ._vec import cross, dot, norm, row, scale, sub, unit
-from .fresnel import Surface, reflection_scalar
+from ._vec import cross, dot, row, scale, sub, unit
+from .fresnel import Surface, reflection_scalar, sp_basis
 
 __all__ = [
     "ON_BOUNDARY",
@@ -282,16 +282,7 @@ def _reflection_2x2(
     ``b_inc``, ``b_ref`` are the edge-fixed bases (pairs of 3-vectors) of the two directions.
     """
     r_te, r_tm = reflection_scalar(eps, thick, rough, min(abs(dot(k_inc, normal)), 1.0), wavelength)
-    e_s = cross(k_inc, normal)
-    ns = norm(e_s)
-    if ns < 1e-9:
-        # Normal incidence: any s direction will do, both coefficients describe one field.
-        alt = (1.0, 0.0, 0.0) if abs(normal[0]) < 0.9 else (0.0, 1.0, 0.0)
-        e_s = cross(alt, normal)
-        ns = norm(e_s)
-    e_s = scale(e_s, 1.0 / ns)
-    e_pi = cross(k_inc, e_s)
-    e_po = cross(k_ref, e_s)
+    e_s, e_pi, e_po = sp_basis(k_inc, k_ref, normal)
     for a in range(2):
         ra = b_ref[a]
         for b in range(2):

@@ -24,3 +24,8 @@ THRESHOLD_DBM = -115.0
 """Detection threshold on PDPs at 30 dBm / 10 dBi (= -100 dBm at 45 dBm transmit power)."""
 BINS = (1, 82)
 """Fingerprint bin window [start, stop): bins 1..81, N_s = 81."""
+
+# Tracer
+DEFAULT_RAYS = 4_000_000
+"""Rays shot from the transmitter for the candidate search: 8M finds the same path set on the
+default scene, 2M misses a few (benchmarks/trace_grid.py)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..constants import DEFAULT_RAYS
 from .osm_area import add_area_arguments, scene_spec
 
 
@@ -40,7 +41,7 @@ def register(sub) -> None:
     p.add_argument("--rrd", metavar="FILE", help="also write a Rerun recording (.rrd) of the data set")
     p.add_argument("--tile-size", type=int, default=4096, help="receivers per tile (default 4096)")
     p.add_argument(
-        "--rays", type=int, metavar="N", help="rays shot for the candidate search (default 8000000)"
+        "--rays", type=int, metavar="N", help=f"rays shot for the candidate search (default {DEFAULT_RAYS})"
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_area_arguments(p)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..constants import DEFAULT_RAYS
 from ..errors import MmwsimError
 from ..files import check_suffix, write_text_atomic
 from .osm_area import add_area_arguments, scene_spec
@@ -37,7 +38,9 @@ def register(sub) -> None:
         help="interactions per path: reflections and the diffraction together (default 3)",
     )
     p.add_argument("--no-diffraction", action="store_true", help="line of sight and reflections only")
-    p.add_argument("--rays", type=int, default=None, help="rays shot for the candidate search")
+    p.add_argument(
+        "--rays", type=int, default=None, help=f"rays shot for the candidate search (default {DEFAULT_RAYS})"
+    )
     p.add_argument(
         "--min-gain",
         type=float,
@@ -82,7 +85,7 @@ def read_receivers(path: str | os.PathLike) -> np.ndarray:
 
 def _run(args) -> int:
     from ..scene import load_scene
-    from ..tracer import DEFAULT_RAYS, Tracer
+    from ..tracer import Tracer
     from . import parse_vector
 
     tx = np.array(parse_vector(args.tx, 3, "--tx")) if args.tx else None

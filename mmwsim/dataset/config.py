@@ -9,7 +9,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ..config import Int2, StrictModel, Vec2, Vec3, content_hash, validate
-from ..constants import BINS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
+from ..constants import BINS, DEFAULT_RAYS, N_BINS, RX_GAIN_DBI, SAMPLE_RATE, SIGMA_DB, THRESHOLD_DBM
 from ..errors import MmwsimError
 from ..limits import check_fits
 
@@ -167,8 +167,6 @@ def resolve_config(
     min_path_gain_db: float | None = -180.0,
 ) -> GenerateConfig:
     """The full configuration of a data set of ``scene`` (loaded from ``scene_spec``)."""
-    from ..tracer import DEFAULT_RAYS
-
     if scene.transmitter is None:
         raise MmwsimError(f"scene {scene_spec!r} has no transmitter")
     grid = scene.receivers

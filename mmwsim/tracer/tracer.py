@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..constants import DEFAULT_RAYS
 from ..errors import MmwsimError
 from ..scene import Scene
 from ..stages import STAGES
@@ -38,7 +39,6 @@ from .wedges import Wedges, find_wedges
 
 __all__ = ["Tracer", "TracerPlan", "trace", "DEFAULT_RAYS", "MIN_GAIN_DB"]
 
-DEFAULT_RAYS = 4_000_000
 """Rays launched from the transmitter by default (mean spacing 1.8 mrad)."""
 MIN_GAIN_DB = -180.0
 """Paths weaker than this (for the best pair of polarisations) are dropped by default, dB: the

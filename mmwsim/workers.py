@@ -17,6 +17,7 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+from ._threads import cores, set_threads
 from .faults import fault
 
 __all__ = ["worker_pool"]
@@ -32,8 +33,10 @@ def _watch_parent(parent: int) -> None:
             os._exit(1)
 
 
-def _die_with_parent(parent: int, then=None, then_args: tuple = ()) -> None:
-    """Initializer of every worker: arrange to die with ``parent``, then run ``then(*then_args)``."""
+def _die_with_parent(parent: int, threads: int, then=None, then_args: tuple = ()) -> None:
+    """Initializer of every worker: arrange to die with ``parent``, take its share of the cores
+    (``threads`` for its own parallel sections), then run ``then(*then_args)``."""
+    set_threads(threads)
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(None, use_errno=True)
@@ -52,12 +55,13 @@ def worker_pool(workers: int, initializer=None, initargs: tuple = ()) -> Process
     """A pool of ``workers`` spawned processes that die with this one (each first runs ``initializer``).
 
     Spawned rather than forked: Embree and BLAS thread pools do not survive ``fork`` reliably.
-    The pool must be used from the thread that lives as long as it does (the kernel's
+    Each worker's threads are capped at its share of the cores so the pool does not
+    oversubscribe them. The pool must be used from the thread that lives as long as it does (the kernel's
     parent-death signal follows the thread that started each worker).
     """
     return ProcessPoolExecutor(
         workers,
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_die_with_parent,
-        initargs=(os.getpid(), initializer, initargs),
+        initargs=(os.getpid(), max(1, cores() // workers), initializer, initargs),
     )

@@ -50,13 +50,9 @@ def register(sub) -> None:
 
 def default_workers() -> int:
     """One worker per core this process may run on, at most 4 (each holds a tile, about 1 GB)."""
-    import os
+    from .._threads import cores
 
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, 4))
+    return max(1, min(cores(), 4))
 
 
 def _default_out(scene: str) -> str:

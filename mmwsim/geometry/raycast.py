@@ -10,9 +10,12 @@ import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
+from .._threads import thread_map, threads
+
 __all__ = ["RayCaster"]
 
-_CHUNK = 1 << 20  # rays per Embree call; bounds the float32 temporaries
+_CHUNK = 1 << 20  # rays per Embree call at most; bounds the float32 temporaries
+_MIN_SPLIT = 1 << 15  # rays below which one call beats handing pieces to threads
 
 
 class RayCaster:
@@ -58,18 +61,17 @@ class RayCaster:
         face = np.full(n, -1, dtype=np.int64)
         if n == 0 or self.n_faces == 0:
             return t, face
-        for s in range(0, n, _CHUNK):
-            sl = slice(s, min(n, s + _CHUNK))
+
+        def run(sl: slice) -> None:
             o = np.ascontiguousarray(origins[sl], dtype=np.float32)
             d = np.ascontiguousarray(directions[sl], dtype=np.float32)
             dists = None if tmax is None else _dists(tmax, sl, len(o))
             res = self._scene.run(o, d, dists=dists, output=1)
-            prim = res["primID"].astype(np.int64)
-            hit = prim >= 0
+            prim = res["primID"]
             face[sl] = prim
-            tt = np.full(len(o), np.inf)
-            tt[hit] = res["tfar"][hit]
-            t[sl] = tt
+            t[sl] = np.where(prim >= 0, res["tfar"], np.inf)
+
+        thread_map(run, _chunks(n))
         return t, face
 
     def occluded(
@@ -85,16 +87,30 @@ class RayCaster:
         out = np.zeros(n, dtype=bool)
         if n == 0 or self.n_faces == 0:
             return out
-        for s in range(0, n, _CHUNK):
-            sl = slice(s, min(n, s + _CHUNK))
+
+        def run(sl: slice) -> None:
             o = np.ascontiguousarray(origins[sl], dtype=np.float32)
             d = np.ascontiguousarray(directions[sl], dtype=np.float32)
             res = self._scene.run(o, d, dists=_dists(tmax, sl, len(o)), query="OCCLUDED")
             out[sl] = np.asarray(res) >= 0
+
+        thread_map(run, _chunks(n))
         return out
 
 
 def _dists(tmax: np.ndarray | float, sl: slice, n: int) -> np.ndarray:
-    arr = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (sl.stop,) if np.ndim(tmax) else (n,))
-    arr = arr[sl] if np.ndim(tmax) else arr
+    """``tmax`` (scalar or one per ray) for the ``n`` rays of ``sl``, float32 and finite."""
+    arr = np.asarray(tmax, dtype=np.float64)
+    arr = np.broadcast_to(arr[sl] if arr.ndim else arr, (n,))
     return np.ascontiguousarray(np.minimum(arr, np.finfo(np.float32).max), dtype=np.float32)
+
+
+def _chunks(n: int) -> list[slice]:
+    """``n`` rays cut into contiguous pieces: at most ``_CHUNK`` each, one per thread at least.
+
+    Embree answers each ray on its own, so the pieces (run on threads, each writing its own
+    slice of the result) give the same answer as one call.
+    """
+    k = max(-(-n // _CHUNK), min(threads(), n // _MIN_SPLIT), 1)
+    step = -(-n // k)
+    return [slice(s, min(n, s + step)) for s in range(0, n, step)]

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import njit
+from .._threads import thread_map, threads
 
 __all__ = ["CellLattice", "CandidateCells", "LegSet", "mark_cells"]
 
@@ -183,14 +184,8 @@ def mark_cells(legs: LegSet, n_cand: int, lattice: CellLattice) -> CandidateCell
     )  # fmt: skip
     # Candidates split in two halves marked on two threads (the kernel runs without the GIL);
     # each candidate's legs stay in one half, so the halves mark disjoint keys.
-    parts = _halves(order, cand) if len(order) > _THREADED and _cores() > 1 else [order]
-    if len(parts) == 1:
-        keys = _mark(parts[0], *args)
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(len(parts)) as pool:
-            keys = np.concatenate(list(pool.map(lambda o: _mark(o, *args), parts)))
+    parts = _halves(order, cand) if len(order) > _THREADED and threads() > 1 else [order]
+    keys = np.concatenate(thread_map(lambda o: _mark(o, *args), parts))
     # keys = cell * n_cand + cand: one sort groups them by cell with candidates ascending.
     keys.sort()
     cell = keys // n_cand
@@ -199,15 +194,6 @@ def mark_cells(legs: LegSet, n_cand: int, lattice: CellLattice) -> CandidateCell
 
 
 _THREADED = 1 << 18  # legs above which the marking is split over two threads
-
-
-def _cores() -> int:
-    import os
-
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
 
 
 def _halves(order: np.ndarray, cand: np.ndarray) -> list[np.ndarray]:

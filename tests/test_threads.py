@@ -1,0 +1,65 @@
+"""Parallel sections: ray queries and cell marking give the same answer on any number of threads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmwsim import _threads
+from mmwsim.geometry import raycast
+from mmwsim.geometry.raycast import RayCaster
+
+
+@pytest.fixture
+def restore_threads():
+    yield
+    _threads.set_threads(None)
+
+
+def test_thread_map_keeps_order(restore_threads):
+    _threads.set_threads(3)
+    assert _threads.thread_map(lambda x: x * x, list(range(10))) == [x * x for x in range(10)]
+    _threads.set_threads(1)
+    assert _threads.threads() == 1
+    _threads.set_threads(None)
+    assert _threads.threads() == _threads.cores() >= 1
+
+
+def test_chunks_cover_every_ray_once(restore_threads, monkeypatch):
+    monkeypatch.setattr(raycast, "_CHUNK", 1000)
+    monkeypatch.setattr(raycast, "_MIN_SPLIT", 10)
+    for threads in (1, 2, 5):
+        _threads.set_threads(threads)
+        for n in (1, 9, 10, 999, 1000, 1001, 4321):
+            pieces = raycast._chunks(n)
+            covered = np.concatenate([np.arange(n)[s] for s in pieces])
+            assert np.array_equal(covered, np.arange(n))
+            assert all(s.stop - s.start <= 1000 for s in pieces)
+            assert len(pieces) >= min(threads, n // 10)
+
+
+def test_ray_queries_same_on_any_number_of_threads(restore_threads, monkeypatch):
+    # A unit box: rays from inside hit it exactly once, from outside some miss.
+    import trimesh
+
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    caster = RayCaster(box.vertices, box.faces)
+    rng = np.random.default_rng(1)
+    n = 5000
+    o = rng.uniform(-2.0, 2.0, (n, 3))
+    d = rng.normal(size=(n, 3))
+    tmax = rng.uniform(0.1, 3.0, n)
+    monkeypatch.setattr(raycast, "_CHUNK", 700)
+    monkeypatch.setattr(raycast, "_MIN_SPLIT", 100)
+    answers = []
+    for threads in (1, 2, 4):
+        _threads.set_threads(threads)
+        t, face = caster.intersect(o, d)
+        answers.append((t, face, caster.occluded(o, d, tmax), caster.intersect(o, d, tmax)[1]))
+    for got in answers[1:]:
+        for a, b in zip(answers[0], got, strict=True):
+            assert np.array_equal(a, b)
+    t, face, _, _ = answers[0]
+    inside = np.all(np.abs(o) < 1.0, axis=1)
+    assert np.all(face[inside] >= 0) and np.all(np.isfinite(t[inside]))
+    assert np.any(face[~inside] < 0)

@@ -93,7 +93,7 @@ def log_paths(rec: Recording, paths: Paths, receivers: np.ndarray | None = None)
         rr.LineStrips3D(
             strips,
             colors=_CLASS_COLORS[cls],
-            radii=0.15,
+            radii=rr.Radius.ui_points(1.5),  # visible at any zoom, above the candidate rays
             labels=[
                 f"rx {r}: {RAY_CLASSES[c][0]}, {1e9 * d:.2f} ns, {g:.1f} dB"
                 for r, c, d, g in zip(paths.rx_index[idx], cls, paths.delay[idx], gain, strict=True)
@@ -109,15 +109,33 @@ def log_paths(rec: Recording, paths: Paths, receivers: np.ndarray | None = None)
 
 def log_candidates(rec: Recording, tracer: Tracer) -> int:
     """An evenly spread sample of the rays shot from the transmitter, as line strips."""
-    strips = [p.astype(np.float32) for p in tracer.shot.sample]
+    # Rays that leave the scene were drawn 1 km long; ended where they leave its box instead,
+    # so they do not push the scene to a speck in the view.
+    lo, hi = tracer.scene.extent
+    pad = 0.05 * (hi - lo).max()
+    strips = [_clip_last_leg(p, lo - pad, hi + pad).astype(np.float32) for p in tracer.shot.sample]
     if strips:
         rec.log(
             Entity.RAY_CANDIDATES,
-            rr.LineStrips3D(strips, colors=[(120, 160, 255, 40)], radii=rr.Radius.ui_points(0.6)),
+            rr.LineStrips3D(strips, colors=[(120, 160, 255, 28)], radii=rr.Radius.ui_points(0.5)),
             static=True,
         )
         log_legend(rec, "scene", "candidates", "search", [("candidate rays (sample)", (120, 160, 255))])
     return len(strips)
+
+
+def _clip_last_leg(strip: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``strip`` (k, 3) with its last point pulled back to where the last leg leaves the box [lo, hi]."""
+    if len(strip) < 2:
+        return strip
+    a, b = strip[-2], strip[-1]
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        exit_t = np.where(d > 0, (hi - a) / d, np.where(d < 0, (lo - a) / d, np.inf))
+    t = float(np.clip(exit_t.min(), 0.0, 1.0))
+    out = strip.copy()
+    out[-1] = a + t * d
+    return out
 
 
 def log_path_context(rec: Recording, paths: Paths, wedges=None, tx_power_dbm: float = 30.0) -> None:

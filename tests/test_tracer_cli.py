@@ -85,3 +85,15 @@ def test_trace_cli_transmitter_inside_or_outside(scene_folder, capsys):
     assert "inside a building" in capsys.readouterr().err
     assert main(["trace", str(scene_folder), "--tx", "500,15,5", "--rx", "35,25,1.5"]) == 2
     assert "outside the scene" in capsys.readouterr().err
+
+
+def test_candidate_rays_end_where_they_leave_the_scene():
+    from mmwsim.tracer.record import _clip_last_leg
+
+    lo, hi = np.zeros(3), np.array([10.0, 10.0, 5.0])
+    escaping = np.array([[5.0, 5.0, 1.0], [6.0, 5.0, 1.0], [1006.0, 5.0, 501.0]])
+    clipped = _clip_last_leg(escaping, lo, hi)
+    assert np.allclose(clipped[:2], escaping[:2])
+    assert np.allclose(clipped[-1], [10.0, 5.0, 3.0])  # the x = 10 face comes before z = 5
+    inside = np.array([[1.0, 1.0, 1.0], [2.0, 3.0, 4.0]])
+    assert np.array_equal(_clip_last_leg(inside, lo, hi), inside)

@@ -62,6 +62,8 @@ def test_trace_cli_many_receivers_summary(tmp_path, capsys):
         (["--rx-file", "CSV:x,y,z\n1,2,abc\n"], "line 2"),
         (["--rx-file", "CSV:a,b,c\n1,2,3\n"], "header"),
         (["--rx", "35,25,1.5", "--json", "OUT:paths.txt"], "must end in .json"),
+        (["--rx", "35,25,1.5", "--diffuse", "1.5"], "scattering coefficient from 0 to 1"),
+        (["--rx", "35,25,1.5", "--diffuse", "nan"], "scattering coefficient from 0 to 1"),
     ],
 )
 def test_trace_cli_bad_input(tmp_path, capsys, scene_folder, extra, message):
@@ -97,3 +99,15 @@ def test_candidate_rays_end_where_they_leave_the_scene():
     assert np.allclose(clipped[-1], [10.0, 5.0, 3.0])  # the x = 10 face comes before z = 5
     inside = np.array([[1.0, 1.0, 1.0], [2.0, 3.0, 4.0]])
     assert np.array_equal(_clip_last_leg(inside, lo, hi), inside)
+
+
+def test_trace_cli_diffuse_adds_diffuse_paths(tmp_path, scene_folder):
+    def kinds(extra):
+        out = tmp_path / "paths.json"
+        args = ["trace", str(scene_folder), "--tx", "35,25,10", "--rx", "35,5,1.5", "--max-reflections", "1"]
+        assert main([*args, "--rays", "50000", "--no-diffraction", "--json", str(out), *extra]) == 0
+        rx = json.loads(out.read_text())["receivers"][0]["paths"]
+        return [t for p in rx for t in p["interaction_types"]]
+
+    assert "diffuse" not in kinds([])
+    assert kinds(["--diffuse", "0.4"]).count("diffuse") > 10

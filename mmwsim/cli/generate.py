@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ..constants import DEFAULT_RAYS
 from .osm_area import add_area_arguments, scene_spec
+from .physics import add_physics_arguments
 
 
 def register(sub) -> None:
@@ -17,19 +17,7 @@ def register(sub) -> None:
     p.add_argument("--tx", help="transmitter position X,Y,Z in metres (default: the scene's)")
     p.add_argument("--out", help="output store directory (default: <scene name>.zarr)")
     p.add_argument("--spacing", type=float, help="receiver spacing in metres (default: the scene's grid)")
-    p.add_argument(
-        "--max-reflections",
-        type=int,
-        default=3,
-        help="interactions per path: reflections, the diffraction and diffuse scattering together (default 3)",
-    )
-    p.add_argument("--no-diffraction", action="store_true", help="trace line of sight and reflections only")
-    p.add_argument(
-        "--diffuse",
-        type=float,
-        metavar="S",
-        help="diffuse scattering: set the scattering coefficient S (0..1) of every material for this run",
-    )
+    add_physics_arguments(p)
     p.add_argument(
         "--workers",
         type=int,
@@ -40,9 +28,6 @@ def register(sub) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", help="run tiles on this Dask scheduler")
     p.add_argument("--rrd", metavar="FILE", help="also write a Rerun recording (.rrd) of the data set")
     p.add_argument("--tile-size", type=int, default=4096, help="receivers per tile (default 4096)")
-    p.add_argument(
-        "--rays", type=int, metavar="N", help=f"rays shot for the candidate search (default {DEFAULT_RAYS})"
-    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_area_arguments(p)
     p.set_defaults(func=_generate)

@@ -15,6 +15,7 @@ from ..constants import DEFAULT_RAYS
 from ..errors import MmwsimError
 from ..files import check_suffix, write_text_atomic
 from .osm_area import add_area_arguments, scene_spec
+from .physics import add_physics_arguments, check_diffuse
 
 _TABLE_LIMIT = 20  # receivers printed in full; more get a summary
 
@@ -23,24 +24,16 @@ def register(sub) -> None:
     p = sub.add_parser(
         "trace",
         help="trace the paths from a transmitter to receivers",
-        description="Every path of line of sight, specular reflections and one edge diffraction (with "
-        "reflections before and after it) up to --max-reflections interactions, solved exactly.",
+        description="Every path of line of sight, specular reflections, one edge diffraction (with "
+        "reflections before and after it) and diffuse scattering off rough surfaces (the last "
+        "interaction) up to --max-reflections interactions, solved exactly.",
     )
     p.add_argument("scene", help="catalogue name (default, manhattan:seed=3, ...) or a .toml/.xml/mesh file")
     p.add_argument("--tx", help="transmitter position X,Y,Z in metres (default: the scene's)")
     rx = p.add_mutually_exclusive_group(required=True)
     rx.add_argument("--rx", action="append", help="receiver position X,Y,Z in metres (repeatable)")
     rx.add_argument("--rx-file", help="CSV file of receivers with the header x,y,z")
-    p.add_argument(
-        "--max-reflections",
-        type=int,
-        default=3,
-        help="interactions per path: reflections and the diffraction together (default 3)",
-    )
-    p.add_argument("--no-diffraction", action="store_true", help="line of sight and reflections only")
-    p.add_argument(
-        "--rays", type=int, default=None, help=f"rays shot for the candidate search (default {DEFAULT_RAYS})"
-    )
+    add_physics_arguments(p)
     p.add_argument(
         "--min-gain",
         type=float,
@@ -103,7 +96,10 @@ def _run(args) -> int:
             t = check_suffix(target, suffix, flag)
             if not t.parent.is_dir() or not os.access(t.parent, os.W_OK):
                 raise MmwsimError(f"{flag} {t}: folder {t.parent} does not exist or is not writable")
+    diffuse = check_diffuse(args.diffuse)
     scene = load_scene(scene_spec(args))
+    if diffuse is not None:
+        scene = scene.with_scattering(diffuse)
     if tx is None:
         if scene.transmitter is None:
             raise MmwsimError(f"scene {scene.name!r} has no transmitter; give --tx X,Y,Z")
@@ -155,6 +151,7 @@ def _run(args) -> int:
                 "tx": tx.tolist(),
                 "max_reflections": args.max_reflections,
                 "diffraction": not args.no_diffraction,
+                "diffuse": diffuse,
                 "min_gain_db": args.min_gain,
             },
         ) as rec:

@@ -63,3 +63,41 @@ def test_ray_queries_same_on_any_number_of_threads(restore_threads, monkeypatch)
     inside = np.all(np.abs(o) < 1.0, axis=1)
     assert np.all(face[inside] >= 0) and np.all(np.isfinite(t[inside]))
     assert np.any(face[~inside] < 0)
+
+
+def test_fibonacci_pieces_equal_the_whole(restore_threads, monkeypatch):
+    from mmwsim.tracer import shooting
+
+    monkeypatch.setattr(shooting, "_MIN_SPLIT", 16)
+    _threads.set_threads(1)
+    whole = shooting._fib_slice(1000, 0, 1000)
+    assert np.allclose(np.linalg.norm(whole, axis=1), 1.0)
+    for threads in (2, 3):
+        _threads.set_threads(threads)
+        assert np.array_equal(shooting.fibonacci_directions(1000), whole)
+        parts = [shooting._fib_slice(1000, s, 300) for s in range(0, 1000, 300)]
+        assert np.array_equal(np.concatenate(parts), whole)
+
+
+def test_shooting_same_legs_for_any_batch_and_threads(restore_threads, monkeypatch):
+    # Batches and thread pieces change how sequences are numbered, never which rays go where.
+    from mmwsim.scene import load_scene
+    from mmwsim.tracer import shooting
+    from mmwsim.tracer.tracer import Tracer
+
+    scene = load_scene("manhattan:seed=2")
+    tracer = Tracer(scene, scene.transmitter.array, 2, 2000, diffraction=False)
+    monkeypatch.setattr(shooting, "_MIN_SPLIT", 64)
+    runs = []
+    for threads, batch in ((1, 1 << 22), (2, 700), (3, 333)):
+        _threads.set_threads(threads)
+        shot = shooting.shoot(tracer.caster, tracer.reflectors, scene.transmitter.array, 2, 2000, batch=batch)
+        runs.append(shot)
+    first = runs[0]
+    for shot in runs[1:]:
+        for a, b in zip(first.sample, shot.sample, strict=True):
+            assert np.array_equal(a, b)
+        for k in (1, 2):
+            la, lb = first.legs[k], shot.legs[k]
+            assert np.array_equal(la.start, lb.start) and np.array_equal(la.length, lb.length)
+            assert np.array_equal(first.sequences[k][la.seq], shot.sequences[k][lb.seq])

@@ -10,11 +10,13 @@ candidate is solved for (see :func:`sequence_cells`).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._jit import njit
+from .._threads import thread_map, threads
 from ..geometry import RayCaster
 from .reflectors import Reflectors
 
@@ -23,6 +25,7 @@ __all__ = ["Shot", "Legs", "fibonacci_directions", "shoot"]
 # Offset of a bounced ray's origin off its plane, metres: Embree works in float32
 # (about 3e-5 m resolution at 400 m), so a smaller offset could re-hit the plane.
 _BOUNCE_OFFSET = 1e-3
+_MIN_SPLIT = 1 << 16  # rays below which one thread does a numpy or compiled pass
 _DENSE_KEYS = 1 << 24  # sequence keys looked up in a dense table up to this many (128 MB)
 
 
@@ -59,6 +62,8 @@ class Legs:
 
     @staticmethod
     def concatenate(parts: list[Legs]) -> Legs:
+        if len(parts) == 1:
+            return parts[0]
         return Legs(*(np.concatenate([getattr(p, f) for p in parts]) for f in Legs.__dataclass_fields__))
 
 
@@ -103,7 +108,7 @@ def shoot(
     tx: np.ndarray,
     max_reflections: int,
     n_rays: int,
-    batch: int = 1 << 20,
+    batch: int = 1 << 22,
     n_sample: int = 500,
     hit_faces: np.ndarray | None = None,
     hit_orders: int = 0,
@@ -143,15 +148,18 @@ def shoot(
     n_faces = caster.n_faces
     sample: dict[int, list[np.ndarray]] = {}
     rays_cast = 0
+    warm = _warm_up(reflectors) if max_reflections else None
     for b0 in range(0, n_rays, batch):
         dirs = _fib_slice(n_rays, b0, batch)
-        ray_id = np.arange(b0, b0 + len(dirs), dtype=np.int64)
+        # Sampled rays: their position in this order's arrays and their ray number.
+        smp = np.arange((-b0) % stride, len(dirs), stride)
+        smp_id = smp + b0
         origin = np.broadcast_to(tx, dirs.shape).copy()
         unfolded = np.zeros(len(dirs))
         seq_id = np.zeros(len(dirs), dtype=np.int64)
         last_ref = np.full(len(dirs), -1, dtype=np.int64)
-        for i in ray_id[ray_id % stride == 0]:
-            sample[int(i)] = [tx]
+        for i in smp_id.tolist():
+            sample[i] = [tx]
         for k in range(max_reflections + 1):
             t, face = caster.intersect(origin, dirs)
             rays_cast += len(origin)
@@ -169,16 +177,21 @@ def shoot(
                         unfolded.astype(np.float32),
                     )
                 )
-            smp = np.flatnonzero(ray_id % stride == 0)
-            for i in smp:
+            for i, r in zip(smp.tolist(), smp_id.tolist(), strict=True):
                 tt = t[i] if np.isfinite(t[i]) else 1e3
-                sample[int(ray_id[i])].append(origin[i] + tt * dirs[i])
+                sample[r].append(origin[i] + tt * dirs[i])
             if k == max_reflections:
                 break
+            if warm is not None:
+                warm.join()
+                warm = None
             keep, ref, origin, dirs, unfolded = _bounce(
                 origin, dirs, t, face, reflectors.face_reflector, reflectors.normal, last_ref, unfolded
             )
-            seq_id, ray_id = seq_id[keep], ray_id[keep]
+            seq_id = seq_id[keep]
+            at = np.minimum(np.searchsorted(keep, smp), max(len(keep) - 1, 0))
+            alive = keep[at] == smp if len(keep) else np.zeros(len(smp), bool)
+            smp, smp_id = at[alive], smp_id[alive]
             seq_id = _sequence_ids(tables[k + 1], parents[k + 1], seq_id * n_ref + ref)
             last_ref = ref
     sequences: list[np.ndarray] = [np.zeros((1, 0), dtype=np.int64)]
@@ -198,32 +211,30 @@ def shoot(
     return Shot(n_rays, spacing, sequences, all_legs, rays_cast, polylines, hit_pairs)
 
 
-@njit(cache=True)
-def _bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded):  # pragma: no cover
+def _bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded):
     """Reflect the rays that hit a reflector specularly; returns (kept index, reflector, origin, dirs, unfolded).
 
     A ray cannot physically meet the plane it just left: such hits are float32 noise and
     end the ray, as do misses. New origins sit :data:`_BOUNCE_OFFSET` off the plane.
     """
-    m = len(t)
-    keep = np.empty(m, np.int64)
-    n_keep = 0
-    for i in range(m):
-        f = face[i]
-        if f >= 0:
-            r = face_reflector[f]
-            if r >= 0 and r != last_ref[i]:
-                keep[n_keep] = i
-                n_keep += 1
-    keep = keep[:n_keep]
-    ref = np.empty(n_keep, np.int64)
-    o2 = np.empty((n_keep, 3))
-    d2 = np.empty((n_keep, 3))
-    u2 = np.empty(n_keep)
-    for j in range(n_keep):
+    ref = face_reflector[np.maximum(face, 0)].astype(np.int64)
+    keep = np.flatnonzero((face >= 0) & (ref >= 0) & (ref != last_ref))
+    ref = ref[keep]
+    n = len(keep)
+    o2, d2, u2 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    thread_map(
+        lambda s: _reflect(keep[s], ref[s], origin, dirs, t, normal, unfolded, o2[s], d2[s], u2[s]),
+        _pieces(n),
+    )
+    return keep, ref, o2, d2, u2
+
+
+@njit(cache=True)
+def _reflect(keep, ref, origin, dirs, t, normal, unfolded, o2, d2, u2):  # pragma: no cover
+    """Mirror rays ``keep`` in the planes ``ref`` at their hits, into ``o2``, ``d2``, ``u2``."""
+    for j in range(len(keep)):
         i = keep[j]
-        r = face_reflector[face[i]]
-        ref[j] = r
+        r = ref[j]
         nx, ny, nz = normal[r, 0], normal[r, 1], normal[r, 2]
         dn = dirs[i, 0] * nx + dirs[i, 1] * ny + dirs[i, 2] * nz
         side = _BOUNCE_OFFSET if dn > 0 else (-_BOUNCE_OFFSET if dn < 0 else 0.0)
@@ -231,7 +242,23 @@ def _bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded): 
             o2[j, a] = origin[i, a] + t[i] * dirs[i, a] - side * na
             d2[j, a] = dirs[i, a] - 2.0 * dn * na
         u2[j] = unfolded[i] + t[i]
-    return keep, ref, o2, d2, u2
+
+
+def _pieces(n: int) -> list[slice]:
+    """``range(n)`` in one contiguous slice per thread (one slice when ``n`` is small)."""
+    k = max(1, min(threads(), n // _MIN_SPLIT))
+    step = -(-n // k) if n else 1
+    return [slice(i, min(n, i + step)) for i in range(0, n, step)]
+
+
+def _warm_up(reflectors: Reflectors) -> threading.Thread:
+    """Load the compiled kernel in the background; numba's first load takes a third of a second
+    of Python work, which overlaps the first Embree pass (that releases the GIL)."""
+    i, f, v = np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
+    normal = np.ascontiguousarray(reflectors.normal, dtype=np.float64)
+    job = threading.Thread(target=_reflect, args=(i, i, v, v, f, normal, f, v, v, f), daemon=True)
+    job.start()
+    return job
 
 
 def _sequence_ids(table: dict, parents: list[int], keys: np.ndarray) -> np.ndarray:
@@ -271,11 +298,19 @@ def _sequence_ids(table: dict, parents: list[int], keys: np.ndarray) -> np.ndarr
 
 def _fib_slice(n: int, start: int, count: int) -> np.ndarray:
     """Rays ``start:start+count`` of :func:`fibonacci_directions` (n) without building them all."""
-    i = np.arange(start, min(n, start + count), dtype=np.float64)
-    z = 1.0 - (2.0 * i + 1.0) / n
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = i * (np.pi * (3.0 - np.sqrt(5.0)))
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+    out = np.empty((max(0, min(n, start + count) - start), 3))
+
+    def fill(s: slice) -> None:  # numpy releases the GIL in these loops: pieces run on threads
+        i = np.arange(start + s.start, start + s.stop, dtype=np.float64)
+        z = 1.0 - (2.0 * i + 1.0) / n
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        phi = i * (np.pi * (3.0 - np.sqrt(5.0)))
+        out[s, 0] = r * np.cos(phi)
+        out[s, 1] = r * np.sin(phi)
+        out[s, 2] = z
+
+    thread_map(fill, _pieces(len(out)))
+    return out
 
 
 def _empty_legs() -> Legs:

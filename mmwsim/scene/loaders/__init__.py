@@ -5,14 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...errors import MmwsimError
+from ...lazy import lazy_exports
 from ..catalogue import load_named_scene
 from ..osm.read import is_osm_path
 from ..scene import Scene
-from .mesh_file import load_mesh_file
-from .mitsuba import load_mitsuba
-from .toml_file import load_toml
 
-__all__ = ["load_scene", "load_toml", "load_mitsuba", "load_mesh_file"]
+# Each reader loads with the first file of its kind: a Mitsuba scene need not pay for the
+# TOML schema (pydantic), nor a TOML scene for the XML parser.
+_readers, __getattr__, __dir__ = lazy_exports(
+    __name__,
+    {".mesh_file": ("load_mesh_file",), ".mitsuba": ("load_mitsuba",), ".toml_file": ("load_toml",)},
+)
+__all__ = ["load_scene", *_readers]
 
 _MESH_SUFFIXES = {".obj", ".ply", ".glb", ".gltf", ".stl", ".off", ".dae", ".3mf"}
 
@@ -50,10 +54,16 @@ def load_scene(source: str | Path | Scene, transmitter: tuple[float, float, floa
                 raise MmwsimError(f"{path}: folder holds no .toml or .xml scene file")
             path, suffix = candidates[0], candidates[0].suffix.lower()
         if suffix == ".toml":
+            from .toml_file import load_toml
+
             return load_toml(path, transmitter)
         if suffix == ".xml":
+            from .mitsuba import load_mitsuba
+
             return load_mitsuba(path, transmitter)
         if not path.exists():
             raise MmwsimError(f"{path}: file not found")
+        from .mesh_file import load_mesh_file
+
         return load_mesh_file(path, transmitter=transmitter)
     return load_named_scene(text, transmitter=transmitter)

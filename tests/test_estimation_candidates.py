@@ -20,6 +20,7 @@ from estimation import (
 )
 from estimation.evaluation import NetworkMethod
 from estimation.models import CandidateTransformer
+from estimation.smoothing.forecast import extrapolate
 from estimation.smoothing.hmm import (
     STEP_SIGMAS,
     candidate_features,
@@ -211,14 +212,58 @@ def test_evaluation_attaches_the_likelihood_at_the_noise_it_evaluates():
     assert np.allclose(method.predict_lengths(bits, [5])[5][0], at12, atol=1e-3)
 
 
-def test_tn_match_needs_the_grid_and_tracks_only():
+def test_tn_match_needs_the_grid():
     d = toy_sequence_set(8, 4, nx=16, ny=16, n_beams=4, n_bins=8)
     est = Estimator(TrainConfig(model="tn-match", options={"search": 16, "k": 4}), 4, 8, d.normaliser())
     with pytest.raises(EstimationError, match="attach"):
         est.predict(torch.zeros(1, 3, 4, 8))
     assert est.attach(d).predict(torch.zeros(1, 3, 4, 8)).shape == (1, 3, 2)
-    with pytest.raises(EstimationError, match="for tracking only"):
-        TrainConfig(model="tn-match", task="forecasting")
+
+
+def test_constant_velocity_forecast_is_exact():
+    g = torch.Generator().manual_seed(0)
+    start, v = torch.rand(5, 1, 2, generator=g) * 100, torch.randn(5, 1, 2, generator=g) * 4
+    track = start + v * torch.arange(7.0)[None, :, None]
+    assert torch.allclose(extrapolate(track[:, :4], 3), track[:, 4:], atol=1e-4)
+    # only the last velocity counts: a turn before it is forgotten
+    turned = torch.cat([track[:, :1] + v.flip(-1), track[:, 1:4]], 1)
+    assert torch.allclose(extrapolate(turned, 3), track[:, 4:], atol=1e-4)
+    # one observed step: no velocity to carry on
+    assert torch.equal(extrapolate(track[:, :1], 2), track[:, :1].expand(-1, 2, -1))
+    with pytest.raises(ValueError, match="shape"):
+        extrapolate(torch.zeros(3, 2), 1)
+
+
+def test_tn_match_forecasts_through_its_tracks(tmp_path):
+    """Trained for forecasting, tn-match tracks the observed steps and carries them on; on the
+    toy grid's straight tracks that beats standing still at the last estimate."""
+    torch.manual_seed(0)
+    tr = toy_sequence_set(256, 6, seed=1)
+    va = toy_sequence_set(64, 6, seed=2)
+    cfg = TrainConfig(
+        model="tn-match",
+        task="forecasting",
+        t_obs=4,
+        horizon=2,
+        epochs=1,
+        epoch_size=128,
+        sigma=6.0,
+        options={"search": 32, "k": 8, "d": 16, "ff": 32},
+    )
+    train(tr, va, cfg, tmp_path / "run", progress=False, record=False, log=lambda s: None)
+    method = NetworkMethod.from_run(tmp_path / "run").for_sigma(6.0, va)
+    assert (method.task, method.t_obs, method.horizon) == ("forecasting", 4, 2)
+    bits = noisy_bits(va, 6.0, torch.Generator().manual_seed(3))
+    pred = method.predict_lengths(bits, [4])[4][0]
+    assert pred.shape == (64, 2, 2) and np.isfinite(pred).all()
+    est = method.est
+    xy, post, fine = est.inputs(bits[:, :4])
+    with torch.no_grad():
+        tracked = est.net.eval().track(xy, post, fine)
+    assert np.allclose(pred, extrapolate(tracked, 2).numpy(), atol=1e-4)
+    true = va.positions[:, 4:6]
+    stand = tracked[:, -1:].expand(-1, 2, -1).numpy()
+    assert trajectory_rmse(pred, true).mean() < trajectory_rmse(stand, true).mean()
 
 
 def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):

@@ -73,14 +73,14 @@ def _sequence_net(cls: type[nn.Module], *args: Any) -> Callable[..., nn.Module]:
 def _candidate_net(
     n_beams: int, n_bins: int, task: Task, horizon: int, dropout: float, **options
 ) -> nn.Module:
-    return CandidateTransformer(dropout=dropout, **options)
+    return CandidateTransformer(dropout=dropout, task=task, horizon=horizon, **options)
 
 
 MODELS: dict[str, ModelSpec] = {
     spec.name: spec
     for spec in (
         ModelSpec("tn", _sequence_net(TransformerNet)),
-        ModelSpec("tn-match", _candidate_net, reads_grid=True, tasks=("tracking",), loss="rmse"),
+        ModelSpec("tn-match", _candidate_net, reads_grid=True, loss="rmse"),
         ModelSpec("lstm", _sequence_net(RecurrentNet, "lstm")),
         ModelSpec("gru", _sequence_net(RecurrentNet, "gru")),
         ModelSpec("rnn", _sequence_net(RecurrentNet, "rnn")),

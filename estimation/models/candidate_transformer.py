@@ -15,6 +15,10 @@ then constant velocity over the pruned candidates), with motion statistics
 with the network. The sub-cell smoother's estimate (:func:`~estimation.smoothing.hmm.subcell_mean`)
 is the network's starting point; the network moves it toward its own weighting of the candidates
 where it learned to trust that.
+
+For forecasting, the tracked positions of the observed steps are carried on at their last velocity
+(:func:`~estimation.smoothing.forecast.extrapolate`); training then fits the tracker to what makes
+good forecasts.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
 from ..smoothing.motion import MotionTable, snap_to_lattice
 from .embedding import sinusoidal_encoding
@@ -35,7 +40,8 @@ _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 
 
 class CandidateTransformer(nn.Module):
-    """Candidates of every step in, positions ``(B, T, 2)`` in metres out.
+    """Candidates of every step in, positions ``(B, T, 2)`` in metres out (forecasting: the
+    ``(B, horizon, 2)`` positions after the last step).
 
     Parameters
     ----------
@@ -45,6 +51,9 @@ class CandidateTransformer(nn.Module):
         Candidates per step the transformer attends over.
     d, heads, layers, ff : transformer width, heads, encoder layers, feed-forward width.
     dropout : float
+    task : ``"tracking"`` or ``"forecasting"``
+    horizon : int
+        Forecasting: steps predicted after the last observed one.
     """
 
     def __init__(
@@ -56,10 +65,13 @@ class CandidateTransformer(nn.Module):
         layers: int = 2,
         ff: int = 128,
         dropout: float = 0.01,
+        task: str = "tracking",
+        horizon: int = 1,
     ):
         super().__init__()
         if not 1 <= k <= search:
             raise ValueError(f"need 1 <= k <= search (got k={k}, search={search})")
+        self.task, self.horizon = task, int(horizon)
         self.search, self.k, self.d = int(search), int(k), int(d)
         n_post = 2 + len(STEP_SIGMAS)
         self.embed = nn.Sequential(nn.Linear(4 + n_post, d), nn.ReLU(), nn.Linear(d, d))
@@ -105,7 +117,14 @@ class CandidateTransformer(nn.Module):
     def forward(self, xy: torch.Tensor, post: torch.Tensor, fine: torch.Tensor | None = None) -> torch.Tensor:
         """``xy (B, T, k, 2)`` metres and ``post (B, T, k, P)`` from :func:`candidate_features`, and
         the classical estimate ``fine (B, T, 2)`` metres (default :meth:`smoothed`) -> positions
-        ``(B, T, 2)`` metres."""
+        ``(B, T, 2)`` metres, or ``(B, horizon, 2)`` when forecasting."""
+        tracked = self.track(xy, post, fine)
+        if self.task != "forecasting":
+            return tracked
+        return extrapolate(tracked, self.horizon)
+
+    def track(self, xy: torch.Tensor, post: torch.Tensor, fine: torch.Tensor | None = None) -> torch.Tensor:
+        """Positions ``(B, T, 2)`` metres of the observed steps (see :meth:`forward`)."""
         B, T, K, _ = xy.shape
         if fine is None:
             fine = self.smoothed(xy, post)

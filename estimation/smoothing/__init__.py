@@ -1,6 +1,7 @@
 """Smoothing of per-step fingerprint matches: Kalman (one match per step) and hidden-Markov (many
 candidates per step), with the motion densities the hidden-Markov smoothers score steps by."""
 
+from .forecast import extrapolate
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
 from .kalman import kalman_forecast, rts_smoother
 from .motion import MixtureMotion, MotionTable, snap_to_lattice
@@ -10,6 +11,7 @@ __all__ = [
     "MotionTable",
     "candidate_features",
     "cell_mean",
+    "extrapolate",
     "kalman_forecast",
     "motion_posterior",
     "rts_smoother",

@@ -1,0 +1,75 @@
+"""How far ahead tn-match's tracks carry: forecast error 1, 2 and 3 s past the last fingerprint.
+
+Usage: python benchmarks/forecast_tn_match.py RUN DATASET [--t-obs 4] [--horizon 3] [--max 1000]
+
+Takes a ``tn-match`` run (trained for tracking or forecasting), tracks the first ``t_obs`` steps of
+test trajectories from fingerprints with fresh 6 dB noise and extrapolates ``horizon`` steps
+(:func:`estimation.extrapolate`, constant velocity). Prints, per split (seen area, held-out
+region), the tracking RMSE over the observed steps and the mean distance to the true position at
+each forecast step (metres) with its ratio to the tracking error, and the same forecast from the
+true last position and velocity: what the users' own changes of motion leave unpredictable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+
+def main() -> None:
+    from estimation import Estimator, noisy_bits, trajectory_rmse
+    from estimation.adapter import load_splits
+    from estimation.smoothing.forecast import extrapolate
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run")
+    ap.add_argument("dataset")
+    ap.add_argument("--t-obs", type=int, default=4)
+    ap.add_argument("--horizon", type=int, default=3)
+    ap.add_argument("--max", type=int, default=1000, help="trajectories per split (seeded subset)")
+    ap.add_argument("--sigma", type=float, default=6.0)
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+
+    est = Estimator.load(args.run)
+    if est.name != "tn-match":
+        raise SystemExit(f"{args.run}: a {est.name} run; this benchmark reads tn-match runs")
+    splits = ("validation", "test/seen", "test/holdout")
+    sets, _ = load_splits(args.dataset, splits)
+    est.attach(sets["validation"], args.sigma)
+    print(
+        f"{args.run}: trained for {est.config.task}; t_obs {args.t_obs}, horizon {args.horizon}, "
+        f"{args.sigma:g} dB"
+    )
+    for split in splits[1:]:
+        data = sets[split]
+        if data.length < args.t_obs + args.horizon:
+            raise SystemExit(f"{split}: {data.length}-step trajectories, need {args.t_obs + args.horizon}")
+        rows = np.sort(np.random.default_rng(0).permutation(data.n)[: args.max])
+        data = data.subset(rows)
+        bits = noisy_bits(data, args.sigma, torch.Generator().manual_seed(1))[:, : args.t_obs]
+        t0 = time.perf_counter()
+        tracked = []
+        with torch.no_grad():
+            for a in range(0, data.n, 256):
+                xy, post, fine = est.inputs(bits[a : a + 256])
+                tracked.append(est.net.eval().track(xy, post, fine))
+        tracked = torch.cat(tracked)
+        secs = time.perf_counter() - t0
+        true = data.positions
+        track_err = trajectory_rmse(tracked.numpy(), true[:, : args.t_obs]).mean()
+        print(f"  {split}: {data.n} trajectories, tracking RMSE {track_err:.2f} m ({secs:.1f} s)")
+        truth = torch.from_numpy(true[:, : args.t_obs])
+        future = true[:, args.t_obs : args.t_obs + args.horizon]
+        for name, track in (("tn-match", tracked), ("true last position and velocity", truth)):
+            pred = extrapolate(track.double(), args.horizon).numpy()
+            dist = np.linalg.norm(pred - future, axis=-1).mean(0)
+            steps = ", ".join(f"{h + 1} s {d:.2f} m ({d / track_err:.2f}x)" for h, d in enumerate(dist))
+            print(f"    forecast from {name}: {steps}")
+
+
+if __name__ == "__main__":
+    main()

@@ -28,7 +28,7 @@ import trimesh
 
 import mmwsim
 from mmwsim.scene.osm import OsmArea, OsmWarning
-from mmwsim.tracer import Tracer
+from mmwsim.tracer import Interaction, Tracer
 
 
 def load_times(path: str, area: dict) -> tuple[mmwsim.OsmScene, float, float]:
@@ -140,7 +140,7 @@ def check_paths(scene, tx: np.ndarray, n_rx: int) -> None:
     rays = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
     tri = scene.vertices[scene.faces]
     n = scene.face_normals
-    bad = {"blocked": 0, "off_face": 0, "not_specular": 0, "length": 0}
+    bad = {"blocked": 0, "off_face": 0, "not_specular": 0, "off_edge": 0, "not_keller": 0, "length": 0}
     for i in range(paths.n_paths):
         k = int(paths.order[i])
         chain = np.vstack([tx, paths.points[i, :k], paths.rx[paths.rx_index[i]]])
@@ -160,20 +160,31 @@ def check_paths(scene, tx: np.ndarray, n_rx: int) -> None:
             bad["blocked"] += 1
         for j, f in enumerate(faces):
             p, (a, b, c) = chain[j + 1], tri[f]
+            d_in, d_out = legs[j] / dist[j], legs[j + 1] / dist[j + 1]
+            if paths.types[i, j] == Interaction.DIFFRACTION:
+                # on the line of one of the face's edges (collinear pieces act as one edge), and
+                # on Keller's cone: the same angle to the edge in and out
+                lines = [(a, b - a), (b, c - b), (c, a - c)]
+                off = [np.linalg.norm(np.cross(p - q, e / np.linalg.norm(e))) for q, e in lines]
+                q, e = lines[int(np.argmin(off))]
+                e = e / np.linalg.norm(e)
+                bad["off_edge"] += min(off) > 1e-6
+                bad["not_keller"] += abs(d_in @ e - d_out @ e) > 1e-6
+                continue
             v0, v1, v2 = b - a, c - a, p - a
             d00, d01, d11, d20, d21 = v0 @ v0, v0 @ v1, v1 @ v1, v2 @ v0, v2 @ v1
             den = d00 * d11 - d01 * d01
             v, w = (d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den
             if abs((p - a) @ n[f]) > 1e-6 or min(v, w, 1 - v - w) < -1e-9:
                 bad["off_face"] += 1
-            d_in, d_out = legs[j] / dist[j], legs[j + 1] / dist[j + 1]
             if np.abs(d_out - (d_in - 2 * (d_in @ n[f]) * n[f])).max() > 1e-6:
                 bad["not_specular"] += 1
     by_order = np.bincount(paths.order, minlength=4)
+    diffracted = int((paths.types == Interaction.DIFFRACTION).any(axis=1).sum())
     print(
         f"paths: {paths.n_paths} to {len(rx)} receivers on the streets in {t_trace:.2f} s"
-        f" (by reflections {', '.join(f'{k}: {c}' for k, c in enumerate(by_order))});"
-        f" invalid: {sum(bad.values())} {bad}"
+        f" (by interactions {', '.join(f'{k}: {c}' for k, c in enumerate(by_order))};"
+        f" {diffracted} with a diffraction); invalid: {sum(bad.values())} {bad}"
     )
 
 

@@ -20,3 +20,29 @@ def raw_embree_rate(scene, n: int = 2_000_000) -> float:
     t = time.perf_counter()
     scene.ray_caster._scene.run(o, d, output=1)
     return n / (time.perf_counter() - t)
+
+
+def run_dataset_parser(doc: str):
+    """Arguments of the scripts that evaluate a training run: RUN DATASET [--max N] [--sigma DB]."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("run")
+    ap.add_argument("dataset")
+    ap.add_argument("--max", type=int, default=1000, help="trajectories per split (seeded subset)")
+    ap.add_argument("--sigma", type=float, default=6.0, help="fingerprint noise, dB (default 6)")
+    return ap
+
+
+def test_draws(data, n_max: int, sigma: float, length: int | None = None):
+    """A seeded subset of at most ``n_max`` trajectories of ``data`` (a SequenceSet), cropped to
+    ``length`` steps, and their fingerprints with fresh noise: ``(subset, bits)``, the same on
+    every run."""
+    import torch
+
+    from estimation import noisy_bits
+
+    if length is not None:
+        data = data.crop(0, min(length, data.length))
+    data = data.subset(np.sort(np.random.default_rng(0).permutation(data.n)[:n_max]))
+    return data, noisy_bits(data, sigma, torch.Generator().manual_seed(1))

@@ -12,25 +12,21 @@ true last position and velocity: what the users' own changes of motion leave unp
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 import torch
+from _common import run_dataset_parser, test_draws
 
 
 def main() -> None:
-    from estimation import Estimator, noisy_bits, trajectory_rmse
+    from estimation import Estimator, trajectory_rmse
     from estimation.adapter import load_splits
     from estimation.smoothing.forecast import extrapolate
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("run")
-    ap.add_argument("dataset")
+    ap = run_dataset_parser(__doc__)
     ap.add_argument("--t-obs", type=int, default=4)
     ap.add_argument("--horizon", type=int, default=3)
-    ap.add_argument("--max", type=int, default=1000, help="trajectories per split (seeded subset)")
-    ap.add_argument("--sigma", type=float, default=6.0)
     args = ap.parse_args()
     torch.set_num_threads(2)
 
@@ -48,9 +44,8 @@ def main() -> None:
         data = sets[split]
         if data.length < args.t_obs + args.horizon:
             raise SystemExit(f"{split}: {data.length}-step trajectories, need {args.t_obs + args.horizon}")
-        rows = np.sort(np.random.default_rng(0).permutation(data.n)[: args.max])
-        data = data.subset(rows)
-        bits = noisy_bits(data, args.sigma, torch.Generator().manual_seed(1))[:, : args.t_obs]
+        data, bits = test_draws(data, args.max, args.sigma)
+        bits = bits[:, : args.t_obs]
         t0 = time.perf_counter()
         tracked = []
         with torch.no_grad():

@@ -10,22 +10,17 @@ mean paired difference (trained minus untrained) with a 95 % bootstrap interval 
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
+from _common import run_dataset_parser, test_draws
 
 
 def main() -> None:
-    from estimation import Estimator, noisy_bits, trajectory_rmse
+    from estimation import Estimator, trajectory_rmse
     from estimation.adapter import load_splits
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("run")
-    ap.add_argument("dataset")
+    ap = run_dataset_parser(__doc__)
     ap.add_argument("--length", type=int, default=7)
-    ap.add_argument("--max", type=int, default=1000, help="trajectories per split (seeded subset)")
-    ap.add_argument("--sigma", type=float, default=6.0)
     args = ap.parse_args()
     torch.set_num_threads(2)
 
@@ -42,9 +37,7 @@ def main() -> None:
         est.attach(sets["validation"], args.sigma)
     print(f"{args.run}: {args.length}-step tracks, {args.sigma:g} dB")
     for split in splits[1:]:
-        data = sets[split].crop(0, min(args.length, sets[split].length))
-        data = data.subset(np.sort(np.random.default_rng(0).permutation(data.n)[: args.max]))
-        bits = noisy_bits(data, args.sigma, torch.Generator().manual_seed(1))
+        data, bits = test_draws(sets[split], args.max, args.sigma, args.length)
         err = {}
         for label, est in (("trained", trained), ("untrained", untrained)):
             pred = torch.cat([est.predict(est.inputs(bits[a : a + 256])) for a in range(0, data.n, 256)])

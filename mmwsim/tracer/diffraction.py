@@ -36,6 +36,7 @@ from .cells import CandidateCells, CellLattice, LegSet, mark_cells
 from .paths import Interaction
 from .polarimetry import FaceMaterials, PathBatch
 from .reflectors import Reflectors
+from .shooting import bounce, sequence_ids
 from .specular import SpecularSolver, inside_box, mirror_chain, plane_point
 from .utd import ON_BOUNDARY
 from .visibility import EPS
@@ -170,7 +171,7 @@ class DiffractionStage:
         b_max = self.max_interactions - 1 - order  # reflections allowed after the diffraction, per lit pair
         for b0 in range(0, len(pair), _POINT_BATCH):
             ray_pair, origin, dirs = self._cone(pair[b0 : b0 + _POINT_BATCH], q[b0 : b0 + _POINT_BATCH], src)
-            level = self._ids(tables[0], parents[0], ray_pair)
+            level = sequence_ids(tables[0], parents[0], ray_pair)
             unfolded = np.zeros(len(ray_pair))
             last = np.full(len(ray_pair), -1, np.int64)
             for kb in range(nb):
@@ -186,35 +187,30 @@ class DiffractionStage:
                         slope_p[ray_pair].astype(np.float32),
                     )
                 )
-                ref = np.where(face >= 0, self.reflectors.face_reflector[np.maximum(face, 0)], -1)
-                keep = (ref >= 0) & (ref != last) & (kb < b_max[ray_pair])
-                if kb + 1 == nb or not keep.any():
+                if kb + 1 == nb:
                     break
-                t, ref, origin, dirs = t[keep], ref[keep], origin[keep], dirs[keep]
-                ray_pair, unfolded, level = ray_pair[keep], unfolded[keep] + t, level[keep]
-                n = self.reflectors.normal[ref]
-                point = origin + t[:, None] * dirs
-                dn = np.einsum("ij,ij->i", dirs, n)
-                dirs = dirs - 2.0 * dn[:, None] * n
-                origin = point - np.sign(dn)[:, None] * EPS * n
-                level = self._ids(tables[kb + 1], parents[kb + 1], level * n_ref + ref)
+                # Rays whose lit pair allows no more reflections end here.
+                face = np.where(kb < b_max[ray_pair], face, -1)
+                keep, ref, origin, dirs, unfolded = bounce(
+                    origin,
+                    dirs,
+                    t,
+                    face,
+                    self.reflectors.face_reflector,
+                    self.reflectors.normal,
+                    last,
+                    unfolded,
+                )
+                if not len(keep):
+                    break
+                ray_pair, level = ray_pair[keep], level[keep]
+                level = sequence_ids(tables[kb + 1], parents[kb + 1], level * n_ref + ref)
                 last = ref
         sizes = [len(p) for p in parents]
         legs = LegSet.concatenate(leg_parts)
         offset = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         legs.cand = offset[legs.cand % nb] + legs.cand // nb
         return self._table(parents, n_ref), legs
-
-    @staticmethod
-    def _ids(table: dict[int, int], parents: list[int], keys: np.ndarray) -> np.ndarray:
-        uniq, inv = np.unique(keys, return_inverse=True)
-        out = np.empty(len(uniq), np.int64)
-        for i, key in enumerate(uniq.tolist()):
-            if key not in table:
-                table[key] = len(table)
-                parents.append(key)
-            out[i] = table[key]
-        return out[inv.ravel()]
 
     def _table(self, parents: list[list[int]], n_ref: int) -> DiffractionCandidates:
         """Candidates (A, wedge, B) of every B length, in id order (B length, then discovery)."""

@@ -20,7 +20,7 @@ from .._threads import thread_map, threads
 from ..geometry import RayCaster
 from .reflectors import Reflectors
 
-__all__ = ["Shot", "Legs", "fibonacci_directions", "shoot"]
+__all__ = ["Shot", "Legs", "bounce", "fibonacci_directions", "sequence_ids", "shoot"]
 
 # Offset of a bounced ray's origin off its plane, metres: Embree works in float32
 # (about 3e-5 m resolution at 400 m), so a smaller offset could re-hit the plane.
@@ -185,14 +185,14 @@ def shoot(
             if warm is not None:
                 warm.join()
                 warm = None
-            keep, ref, origin, dirs, unfolded = _bounce(
+            keep, ref, origin, dirs, unfolded = bounce(
                 origin, dirs, t, face, reflectors.face_reflector, reflectors.normal, last_ref, unfolded
             )
             seq_id = seq_id[keep]
             at = np.minimum(np.searchsorted(keep, smp), max(len(keep) - 1, 0))
             alive = keep[at] == smp if len(keep) else np.zeros(len(smp), bool)
             smp, smp_id = at[alive], smp_id[alive]
-            seq_id = _sequence_ids(tables[k + 1], parents[k + 1], seq_id * n_ref + ref)
+            seq_id = sequence_ids(tables[k + 1], parents[k + 1], seq_id * n_ref + ref)
             last_ref = ref
     sequences: list[np.ndarray] = [np.zeros((1, 0), dtype=np.int64)]
     for k in range(1, max_reflections + 1):
@@ -211,7 +211,7 @@ def shoot(
     return Shot(n_rays, spacing, sequences, all_legs, rays_cast, polylines, hit_pairs)
 
 
-def _bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded):
+def bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded):
     """Reflect the rays that hit a reflector specularly; returns (kept index, reflector, origin, dirs, unfolded).
 
     A ray cannot physically meet the plane it just left: such hits are float32 noise and
@@ -261,7 +261,7 @@ def _warm_up(reflectors: Reflectors) -> threading.Thread:
     return job
 
 
-def _sequence_ids(table: dict, parents: list[int], keys: np.ndarray) -> np.ndarray:
+def sequence_ids(table: dict, parents: list[int], keys: np.ndarray) -> np.ndarray:
     """Ids of sequence keys (parent id * n_ref + reflector), new keys numbered in sorted order.
 
     ``table`` maps keys to ids; while the key space is small it also holds a dense array

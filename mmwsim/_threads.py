@@ -11,7 +11,7 @@ import os
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
-__all__ = ["cores", "threads", "set_threads", "thread_map"]
+__all__ = ["cores", "threads", "set_threads", "thread_map", "pieces"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -47,3 +47,14 @@ def thread_map(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
 
     with ThreadPoolExecutor(n) as pool:
         return list(pool.map(fn, items))
+
+
+def pieces(n: int, min_piece: int, max_piece: int | None = None) -> list[slice]:
+    """``range(n)`` cut into contiguous slices of near-equal size for :func:`thread_map`: one per
+    thread once ``n`` reaches ``min_piece`` per thread (one slice below that), and at most
+    ``max_piece`` long each."""
+    k = max(1, min(threads(), n // max(min_piece, 1)))
+    if max_piece:
+        k = max(k, -(-n // max_piece))
+    step = -(-n // k) if n else 1
+    return [slice(s, min(n, s + step)) for s in range(0, n, step)]

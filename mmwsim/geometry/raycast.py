@@ -10,7 +10,7 @@ import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from .._threads import thread_map, threads
+from .._threads import pieces, thread_map
 
 __all__ = ["RayCaster"]
 
@@ -111,6 +111,4 @@ def _chunks(n: int) -> list[slice]:
     Embree answers each ray on its own, so the pieces (run on threads, each writing its own
     slice of the result) give the same answer as one call.
     """
-    k = max(-(-n // _CHUNK), min(threads(), n // _MIN_SPLIT), 1)
-    step = -(-n // k)
-    return [slice(s, min(n, s + step)) for s in range(0, n, step)]
+    return pieces(n, _MIN_SPLIT, _CHUNK)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import njit
-from .._threads import thread_map, threads
+from .._threads import pieces, thread_map
 from ..geometry import RayCaster
 from .reflectors import Reflectors
 
@@ -224,7 +224,7 @@ def bounce(origin, dirs, t, face, face_reflector, normal, last_ref, unfolded):
     o2, d2, u2 = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     thread_map(
         lambda s: _reflect(keep[s], ref[s], origin, dirs, t, normal, unfolded, o2[s], d2[s], u2[s]),
-        _pieces(n),
+        pieces(n, _MIN_SPLIT),
     )
     return keep, ref, o2, d2, u2
 
@@ -242,13 +242,6 @@ def _reflect(keep, ref, origin, dirs, t, normal, unfolded, o2, d2, u2):  # pragm
             o2[j, a] = origin[i, a] + t[i] * dirs[i, a] - side * na
             d2[j, a] = dirs[i, a] - 2.0 * dn * na
         u2[j] = unfolded[i] + t[i]
-
-
-def _pieces(n: int) -> list[slice]:
-    """``range(n)`` in one contiguous slice per thread (one slice when ``n`` is small)."""
-    k = max(1, min(threads(), n // _MIN_SPLIT))
-    step = -(-n // k) if n else 1
-    return [slice(i, min(n, i + step)) for i in range(0, n, step)]
 
 
 def _warm_up(reflectors: Reflectors) -> threading.Thread:
@@ -309,7 +302,7 @@ def _fib_slice(n: int, start: int, count: int) -> np.ndarray:
         out[s, 1] = r * np.sin(phi)
         out[s, 2] = z
 
-    thread_map(fill, _pieces(len(out)))
+    thread_map(fill, pieces(len(out), _MIN_SPLIT))
     return out
 
 

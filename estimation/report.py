@@ -19,7 +19,9 @@ from .evaluation import Evaluation
 
 __all__ = [
     "accuracy_table",
+    "comparison_table",
     "cost_table",
+    "plot_error_grid",
     "plot_error_vs_length",
     "write_report",
     "record_estimates",
@@ -27,6 +29,7 @@ __all__ = [
 ]
 
 _KIND_ORDER = ("vehicle", "pedestrian", "hybrid", "static", "all")
+_KIND_SHORT = {"vehicle": "veh.", "pedestrian": "ped.", "hybrid": "hyb.", "static": "stat."}
 
 
 def _fmt(v: float) -> str:
@@ -65,22 +68,97 @@ def accuracy_table(ev: Evaluation, split: str, task: str = "tracking") -> str:
     return "\n".join(lines) + "\n"
 
 
-def cost_table(ev: Evaluation) -> str:
-    """Markdown: learnable parameters, training time and prediction time per method."""
+def comparison_table(
+    ev: Evaluation,
+    task: str,
+    splits: list[str],
+    noises: list[float],
+    kinds: tuple[str, ...] = ("vehicle", "pedestrian", "all"),
+    methods: list[str] | None = None,
+    split_labels: dict[str, str] | None = None,
+) -> str:
+    """Markdown: one row per method, one column per (noise level, split, kind) holding the mean
+    per-trajectory RMSE (m) at ``table_length`` steps (tracking) or of the forecast setting.
+
+    ``methods`` orders the rows (default: as they appear in ``ev.rows``; a method without a row
+    is left out); ``split_labels`` names the splits in the header (default the split names).
+    Empty when ``ev`` has no row of ``task``.
+    """
+    rows = [r for r in ev.rows if r["task"] == task and r["split"] in splits and r["sigma"] in noises]
+    if task == "tracking" and rows:
+        length = min(ev.table_length, max(r["length"] for r in rows))
+        rows = [r for r in rows if r["length"] == length]
+    if not rows:
+        return ""
+    present = list(dict.fromkeys(r["method"] for r in rows))
+    order = [m for m in (methods or present) if m in present]
+    labels = split_labels or {}
+    columns = [
+        (sigma, split, kind)
+        for sigma in noises
+        for split in splits
+        if any(r["split"] == split and r["sigma"] == sigma for r in rows)
+        for kind in kinds
+    ]
+    head = ["Method"] + [f"{s:g} dB {labels.get(sp, sp)} {_KIND_SHORT.get(k, k)}" for s, sp, k in columns]
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * len(columns)]
+    by = {(r["method"], r["sigma"], r["split"], r["kind"]): r["mean"] for r in rows}
+    for m in order:
+        cells = [_fmt(by[(m, *c)]) if (m, *c) in by else "–" for c in columns]
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def cost_table(ev: Evaluation, extra: dict[str, str] | None = None) -> str:
+    """Markdown: learnable parameters, training time and prediction time per method; ``extra``
+    maps further keys of ``ev.cost`` entries to column headings (shown as text, ``–`` if absent)."""
+    extra = extra or {}
     head = [
         "Model",
         "Parameters",
         "Training time (h:mm:ss)",
         "Epochs",
         f"Prediction time (s per 1000 sequences of {ev.table_length} steps)",
+        *extra.values(),
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m, c in ev.cost.items():
+        more = "".join(f" {c.get(k, '–')} |" for k in extra)
         lines.append(
             f"| {m} | {c['parameters']:.3g} | {_hms(c['train_seconds'])} | {c['epochs'] or '–'} | "
-            f"{c['predict_seconds']:.3f} |"
+            f"{c['predict_seconds']:.3f} |{more}"
         )
     return "\n".join(lines) + "\n"
+
+
+def _error_panel(ax, rows: list[dict[str, Any]], kind: str, title: str, p95: bool = True) -> None:
+    """One panel of error against sequence length: mean (solid) and, with ``p95``, the 95th
+    percentile (dashed) of the tracking rows of ``kind``, one colour per method."""
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for i, m in enumerate(methods):
+        rs = sorted((r for r in rows if r["method"] == m and r["kind"] == kind), key=lambda r: r["length"])
+        x = [r["length"] for r in rs]
+        colour = f"C{i % 10}"
+        style = "-o" if i < 10 else "-s"
+        ax.plot(x, [r["mean"] for r in rs], style, ms=3, color=colour, label=f"{m} mean" if p95 else m)
+        if p95:
+            ax.plot(x, [r["p95"] for r in rs], "--", color=colour, alpha=0.7, label=f"{m} p95")
+    ax.set_title(title)
+    ax.set_xlabel("sequence length (steps)")
+    ax.set_ylabel("RMSE (m)")
+    ax.grid(alpha=0.3)
+
+
+def _save_figure(fig, path: str | os.PathLike) -> None:
+    import matplotlib.pyplot as plt
+
+    from mmwsim.files import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def plot_error_vs_length(ev: Evaluation, split: str, sigma: float, path: str | os.PathLike) -> bool:
@@ -99,29 +177,57 @@ def plot_error_vs_length(ev: Evaluation, split: str, sigma: float, path: str | o
     nrows = -(-len(kinds) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(4.4 * ncols, 3.5 * nrows), squeeze=False)
     axes = axes.ravel()
-    methods = list(dict.fromkeys(r["method"] for r in rows))
     for ax, k in zip(axes, kinds, strict=False):
-        for i, m in enumerate(methods):
-            rs = sorted((r for r in rows if r["method"] == m and r["kind"] == k), key=lambda r: r["length"])
-            x = [r["length"] for r in rs]
-            colour = f"C{i}"
-            ax.plot(x, [r["mean"] for r in rs], "-o", ms=3, color=colour, label=f"{m} mean")
-            ax.plot(x, [r["p95"] for r in rs], "--", color=colour, alpha=0.7, label=f"{m} p95")
-        ax.set_title(f"{k} ({split}, {sigma:g} dB)")
-        ax.set_xlabel("sequence length (steps)")
-        ax.set_ylabel("RMSE (m)")
-        ax.grid(alpha=0.3)
+        _error_panel(ax, rows, k, f"{k} ({split}, {sigma:g} dB)")
     for ax in axes[len(kinds) :]:
         ax.axis("off")
     axes[0].legend(fontsize=7, ncol=1)
     fig.tight_layout()
-    from mmwsim.files import atomic_path
+    _save_figure(fig, path)
+    return True
 
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-    finally:
-        plt.close(fig)
+
+def plot_error_grid(
+    ev: Evaluation,
+    panels: list[tuple[str, float]],
+    path: str | os.PathLike,
+    kinds: tuple[str, ...] = ("vehicle", "pedestrian", "all"),
+    p95: bool = False,
+    methods: list[str] | None = None,
+    split_labels: dict[str, str] | None = None,
+    log_y: bool = False,
+) -> bool:
+    """PNG: tracking RMSE against sequence length in a grid of panels, one row per
+    ``(split, sigma)`` of ``panels`` and one column per kind; the mean (solid) and, with ``p95``,
+    the 95th percentile (dashed); one colour per method, in the order of ``methods`` (default as
+    they appear); ``log_y`` for a logarithmic error axis. Rows without data are left out; returns
+    False if nothing is plotted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in ev.rows if r["task"] == "tracking"]
+    if methods is not None:
+        rows = sorted((r for r in rows if r["method"] in methods), key=lambda r: methods.index(r["method"]))
+    panels = [(sp, s) for sp, s in panels if any(r["split"] == sp and r["sigma"] == s for r in rows)]
+    if not panels:
+        return False
+    labels = split_labels or {}
+    fig, axes = plt.subplots(
+        len(panels), len(kinds), figsize=(4.4 * len(kinds), 3.3 * len(panels)), squeeze=False
+    )
+    for (split, sigma), line in zip(panels, axes, strict=True):
+        sel = [r for r in rows if r["split"] == split and r["sigma"] == sigma]
+        for ax, k in zip(line, kinds, strict=True):
+            _error_panel(ax, sel, k, f"{k}, {labels.get(split, split)}, {sigma:g} dB", p95=p95)
+            if log_y:
+                ax.set_yscale("log")
+                ax.grid(alpha=0.3, which="both")
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="upper center", ncol=min(len(names), 6), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (3.3 * len(panels)) * (1 + (len(names) - 1) // 6)))
+    _save_figure(fig, path)
     return True
 
 

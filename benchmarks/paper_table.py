@@ -1,0 +1,492 @@
+"""The paper's comparison under one protocol: train every model, evaluate all, write the table.
+
+    python benchmarks/paper_table.py DATA.zarr --out DIR [--budget-minutes 30] [--models lstm tn ...]
+        [--tasks tracking forecasting] [--noises 6 9] [--max-trajectories N] [--epoch-size 2048]
+
+Every model (LSTM, GRU, RNN, TCN, Conv1D, tn, tn-match) is trained for each task under one
+protocol: the same training and validation trajectories, the same epoch size, early stopping on the
+validation loss with the same patience, and one wall-clock budget per model (no epoch starts after
+it; the budget is stated in the table). Runs go to DIR/runs/<model>-<task>. Then the runs and the
+classical trackers (the oracle first, when ``estimation.method("oracle")`` exists; knn-kalman;
+match-cv) are evaluated on test/seen and test/holdout at each noise level, all on the same noisy
+fingerprints, and DIR/paper_table.md (accuracy at 7 steps for tracking, the forecast for forecasting,
+vehicle / pedestrian / all, per noise level and split; parameters, training time, epochs and prediction
+time) and DIR/error_vs_length.png (tracking error against sequence length) are written.
+
+Resumable: rerun the same command after a kill. Finished runs are skipped, an interrupted run
+continues from its last checkpoint with the rest of its budget, and evaluations are cached per
+method in DIR/cache (recomputed only when the run or the evaluation settings change). DIR keeps the
+protocol it was started with (DIR/protocol.json); a rerun under another protocol is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MODELS = ("lstm", "gru", "rnn", "tcn", "conv1d", "tn", "tn-match")
+TASKS = ("tracking", "forecasting")
+SPLITS = ("test/seen", "test/holdout")
+SPLIT_LABELS = {"test/seen": "seen", "test/holdout": "held-out"}
+KINDS = ("vehicle", "pedestrian", "all")
+CLASSICAL = ("oracle", "knn-kalman", "match-cv")
+CACHE_FORMAT = 1
+
+
+class _Usage(Exception):
+    """A bad command line: one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line instead of usage + message
+        raise _Usage(message)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = _Parser(
+        prog="paper_table.py",
+        description=__doc__.splitlines()[0],
+        epilog=__doc__.split("\n\n", 2)[2],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("dataset", help="data set with trajectories (zarr), or toy[:n=N,length=L,seed=S]")
+    ap.add_argument("--out", required=True, help="output folder (runs, cache, table, plot)")
+    ap.add_argument(
+        "--budget-minutes", type=float, default=30.0, help="wall-clock training budget per model (default 30)"
+    )
+    ap.add_argument("--models", nargs="+", default=list(MODELS), help=f"default: {' '.join(MODELS)}")
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), help="default: tracking forecasting")
+    ap.add_argument("--noises", nargs="+", type=float, default=[6.0, 9.0], help="dB (default 6 9)")
+    ap.add_argument(
+        "--max-trajectories",
+        type=int,
+        default=0,
+        help="at most N trajectories per split (train, validation, test; a seeded subset; default all)",
+    )
+    ap.add_argument(
+        "--epoch-size", type=int, default=2048, help="trajectories per epoch, fresh each epoch (default 2048)"
+    )
+    ap.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
+    ap.add_argument(
+        "--max-epochs", type=int, default=1000, help="epoch cap (default 1000: budget and patience decide)"
+    )
+    ap.add_argument(
+        "--classical",
+        nargs="*",
+        default=list(CLASSICAL),
+        help=f"classical trackers to evaluate beside the runs (default: {' '.join(CLASSICAL)}; the oracle "
+        "only where it exists)",
+    )
+    ap.add_argument("--sigma", type=float, default=6.0, help="training noise, dB (default 6)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--threads", type=int, default=1, help="torch threads (default 1; batches drawn on a second)"
+    )
+    return ap
+
+
+def _check(args) -> None:
+    """Reject bad values with one line (a :class:`_Usage`)."""
+    if not (math.isfinite(args.budget_minutes) and args.budget_minutes > 0):
+        raise _Usage(f"--budget-minutes must be a finite number > 0, got {args.budget_minutes}")
+    bad = [m for m in args.models if m not in MODELS]
+    if bad:
+        raise _Usage(f"--models: unknown {' '.join(bad)} (choose from {' '.join(MODELS)})")
+    bad = [c for c in args.classical if c not in CLASSICAL]
+    if bad:
+        raise _Usage(f"--classical: unknown {' '.join(bad)} (choose from {' '.join(CLASSICAL)})")
+    bad = [t for t in args.tasks if t not in TASKS]
+    if bad:
+        raise _Usage(f"--tasks: unknown {' '.join(bad)} (choose from {' '.join(TASKS)})")
+    if not all(math.isfinite(n) and n >= 0 for n in args.noises):
+        raise _Usage(f"--noises must be finite and >= 0 dB, got {' '.join(f'{n:g}' for n in args.noises)}")
+    if args.max_trajectories < 0 or args.epoch_size < 0:
+        raise _Usage("--max-trajectories and --epoch-size must be >= 0")
+    if args.patience < 1 or args.max_epochs < 1 or args.threads < 1:
+        raise _Usage("--patience, --max-epochs and --threads must be >= 1")
+    if not (math.isfinite(args.sigma) and args.sigma >= 0):
+        raise _Usage(f"--sigma must be finite and >= 0 dB, got {args.sigma}")
+    if not str(args.dataset).startswith("toy") and not Path(args.dataset).exists():
+        raise _Usage(f"{args.dataset}: data set not found")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise _Usage(f"--out {out}: exists and is not a folder")
+    args.models = list(dict.fromkeys(args.models))
+    args.tasks = list(dict.fromkeys(args.tasks))
+    args.noises = list(dict.fromkeys(float(n) for n in args.noises))
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        _check(args)
+    except _Usage as e:
+        print(f"paper_table.py: error: {e}", file=sys.stderr)
+        return 2
+    import torch
+
+    from estimation import EstimationError
+    from mmwsim.errors import MmwsimError
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        return _main(args)
+    except (EstimationError, MmwsimError) as e:
+        print(f"paper_table.py: error: {e}", file=sys.stderr)
+        return 2
+    finally:
+        torch.set_num_threads(threads)
+
+
+def log(text: str) -> None:
+    print(text, flush=True)
+
+
+def _subset(data, n: int, seed: int):
+    """At most ``n`` trajectories of ``data`` (0 = all): a seeded random subset in stored order."""
+    if not n or data.n <= n:
+        return data
+    return data.subset(np.sort(np.random.default_rng(seed).permutation(data.n)[:n]))
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    from mmwsim.files import write_text_atomic
+
+    write_text_atomic(path, json.dumps(obj, indent=1, sort_keys=True, default=float))
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _main(args) -> int:
+    from estimation import TrainConfig
+    from estimation.adapter import load_sets
+    from mmwsim.locks import locked_output
+
+    out = Path(args.out)
+    t_start = time.perf_counter()
+    sets, info = load_sets(args.dataset, ("train", "validation", *SPLITS))
+    sets = {k: _subset(v, args.max_trajectories, args.seed + i) for i, (k, v) in enumerate(sets.items())}
+    protocol = {
+        "dataset": info.get("dataset", str(args.dataset)),
+        "content_hash": info.get("content_hash", ""),
+        "max_trajectories": args.max_trajectories,
+        "n_train": sets["train"].n,
+        "n_validation": sets["validation"].n,
+        "epoch_size": min(args.epoch_size, sets["train"].n) if args.epoch_size else sets["train"].n,
+        "patience": args.patience,
+        "max_epochs": args.max_epochs,
+        "budget_minutes": args.budget_minutes,
+        "sigma": args.sigma,
+        "seed": args.seed,
+        # forecasting: observed and predicted steps (the training defaults, used by every method)
+        "t_obs": TrainConfig(model="lstm").t_obs,
+        "horizon": TrainConfig(model="lstm").horizon,
+    }
+    log(
+        f"protocol: {protocol['n_train']} training / {protocol['n_validation']} validation trajectories, "
+        f"epoch size {protocol['epoch_size']}, patience {args.patience}, budget {args.budget_minutes:g} min "
+        f"per model, training noise {args.sigma:g} dB, {args.threads} torch thread(s); "
+        f"test: {', '.join(f'{k} {sets[k].n}' for k in SPLITS)}"
+    )
+    # One writer per folder; what is made here stays if the script fails or is stopped (resumable).
+    with locked_output(out, "table folder", create=True, keep=lambda: True):
+        _check_protocol(out, protocol)
+        runs = _train_all(args, out, sets, info, protocol)
+        ev, names, skipped = _evaluate_all(args, out, sets, runs, protocol)
+        md = _write_outputs(args, out, ev, names, protocol, skipped)
+    log(f"wrote {md} and {out / 'error_vs_length.png'} ({time.perf_counter() - t_start:.0f} s)")
+    return 0
+
+
+def _check_protocol(out: Path, protocol: dict[str, Any]) -> None:
+    from estimation import EstimationError
+
+    path = out / "protocol.json"
+    old = _read_json(path) if path.exists() else None
+    if old is None:
+        _write_json(path, protocol)
+        return
+    differ = [k for k in protocol if old.get(k) != protocol[k]]
+    if differ:
+        raise EstimationError(
+            f"{out}: was started under another protocol ("
+            + ", ".join(f"{k} {old.get(k)} != {protocol[k]}" for k in differ)
+            + "); rerun with its settings or choose another --out"
+        )
+
+
+# ---------------------------------------------------------------------------------------- training
+
+
+def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
+    """Train (or resume, or skip) every (model, task); returns run name -> run folder of the runs
+    that exist."""
+    from estimation import EstimationError, TrainConfig
+
+    budget = 60.0 * args.budget_minutes
+    jobs = [(m, t) for t in args.tasks for m in args.models]
+    runs: dict[str, Path] = {}
+    (out / "cache").mkdir(exist_ok=True)
+    for i, (model, task) in enumerate(jobs, 1):
+        name = f"{model}-{task}"
+        head = f"[train {i}/{len(jobs)}] {name}"
+        try:
+            cfg = TrainConfig(
+                model=model,
+                task=task,
+                sigma=args.sigma,
+                epochs=args.max_epochs,
+                patience=args.patience,
+                epoch_size=protocol["epoch_size"],
+                seed=args.seed,
+            )
+        except EstimationError as e:
+            log(f"{head}: skipped ({e})")
+            continue
+        run, marker = out / "runs" / name, out / "cache" / f"train-{name}.json"
+        done = _read_json(marker)
+        if done and (run / "model.pt").exists():
+            log(f"{head}: finished before ({_describe(done)}), skipped")
+            runs[name] = run
+            continue
+        spent = _spent(run)
+        left = max(budget - spent, 0.0)
+        log(f"{head}: {f'resuming after {spent:.1f} s' if spent else 'training'}, {left:.0f} s left")
+        summary = _train_one(sets, cfg, run, info, protocol, left)
+        if summary["epochs"] == 0 or not (run / "model.pt").exists():
+            log(f"{head}: no epoch finished within the budget; left out")
+            continue
+        summary["ended"] = _ended(summary, cfg, budget)
+        _write_json(marker, summary)
+        log(f"{head}: {_describe(summary)}")
+        runs[name] = run
+    return runs
+
+
+def _spent(run: Path) -> float:
+    """Training seconds of the epochs a run's checkpoint holds (0 without one)."""
+    from estimation.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
+    from estimation.training import CHECKPOINT_FILE
+
+    path = run / CHECKPOINT_FILE
+    if not path.exists():
+        return 0.0
+    return float(sum(load_checkpoint(path, CHECKPOINT_FORMAT, ("history",))["history"]["seconds"]))
+
+
+def _train_one(sets, cfg, run: Path, info, protocol, seconds: float) -> dict[str, Any]:
+    from estimation import train
+
+    data_info = dict(info, train_split="train", val_split="validation", protocol=protocol)
+    return train(
+        sets["train"],
+        sets["validation"],
+        cfg,
+        run,
+        resume=True,  # a fresh start when there is no checkpoint yet
+        data_info=data_info,
+        progress=False,
+        log=lambda text: log(f"    {text}"),
+        time_limit=seconds,
+    )
+
+
+def _ended(summary: dict[str, Any], cfg, budget: float) -> str:
+    if summary.get("stopped_early"):
+        return "early stop"
+    if summary["epochs"] >= cfg.epochs:
+        return "epoch cap"
+    return "budget"
+
+
+def _describe(s: dict[str, Any]) -> str:
+    return (
+        f"{s['epochs']} epochs, {s['train_seconds']:.0f} s, best validation RMSE {s['best_val_rmse']:.2f} m "
+        f"at epoch {s['best_epoch']}, ended by {s.get('ended', '?')}"
+    )
+
+
+# -------------------------------------------------------------------------------------- evaluation
+
+
+def _classical(name: str, task: str, t_obs: int, horizon: int, seed: int):
+    """The classical method ``name`` for ``task``, or None (with the reason) when it does not exist
+    or does not do that task."""
+    from estimation import method
+
+    try:
+        m = method(name, task=task, t_obs=t_obs, horizon=horizon, fit_length=7, seed=seed)
+    except Exception as e:  # a method still being written, or refusing its options: leave it out
+        return None, " ".join(str(e).split())[:160] or type(e).__name__
+    if getattr(m, "task", task) != task:
+        return None, f"does {m.task} only"
+    return m, ""
+
+
+def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
+    """Evaluate every run and classical tracker (cached); returns the merged Evaluation, the method
+    order for the tables, and what was left out with why."""
+    from estimation import method
+    from estimation.evaluation import Evaluation
+    from estimation.training import read_run_info
+
+    test = {k: sets[k] for k in SPLITS}
+    setting = {
+        "format": CACHE_FORMAT,
+        "protocol": protocol,
+        "noises": args.noises,
+        "splits": {k: v.n for k, v in test.items()},
+        "table_length": 7,
+        "seed": args.seed,
+    }
+    jobs: list[tuple[str, str, str, Any]] = []  # (label, task, cache key, how to build)
+    skipped: list[str] = []
+    first = [c for c in args.classical if c == "oracle"]  # the floor heads every table
+    last = [c for c in CLASSICAL if c in args.classical and c != "oracle"]
+    t_obs, horizon = protocol["t_obs"], protocol["horizon"]
+    for task in args.tasks:
+        for name in first:
+            jobs.append((name, task, f"{name}-{task}", ("classical", name)))
+        for model in args.models:
+            name = f"{model}-{task}"
+            if name in runs:
+                jobs.append((model, task, name, ("run", runs[name])))
+        for name in last:
+            jobs.append((name, task, f"{name}-{task}", ("classical", name)))
+    merged = Evaluation(table_length=7)
+    order: list[str] = []
+    for i, (label, task, key, (kind, what)) in enumerate(jobs, 1):
+        head = f"[evaluate {i}/{len(jobs)}] {key}"
+        if kind == "run":
+            run_summary = read_run_info(what).get("summary", {})
+            want = setting | {"run": run_summary}
+        else:
+            want = setting | {"method": key}
+        path = out / "cache" / f"eval-{key}.json"
+        cached = _read_json(path) if path.exists() else None
+        if cached and cached.get("setting") == json.loads(json.dumps(want, default=float)):
+            log(f"{head}: cached")
+            result = cached
+        else:
+            if kind == "run":
+                m = method(what)
+            else:
+                m, why = _classical(what, task, t_obs, horizon, args.seed)
+                if m is None:
+                    log(f"{head}: left out ({why})")
+                    skipped.append(f"{key}: {why}")
+                    continue
+            log(f"{head}: evaluating")
+            t0 = time.perf_counter()
+            result = _evaluate_one(m, test, args.noises, sets["validation"], args.seed)
+            result["setting"] = want
+            result["name"] = m.name
+            _write_json(path, result)
+            log(f"{head}: done in {time.perf_counter() - t0:.0f} s")
+        for r in result["rows"]:
+            merged.rows.append(dict(r, method=label))
+        cost = dict(result["cost"].get(result.get("name", key)) or _no_cost(result))
+        if kind == "run":
+            done = _read_json(out / "cache" / f"train-{key}.json") or {}
+            cost["ended"] = done.get("ended", "–")
+            cost["best_epoch"] = done.get("best_epoch", "–")
+        merged.cost[key] = cost
+        if label not in order:
+            order.append(label)
+    return merged, order, skipped
+
+
+def _no_cost(result: dict[str, Any]) -> dict[str, Any]:
+    """Cost of a method whose first split was empty (evaluate books cost on the first one)."""
+    return {"parameters": 0, "train_seconds": math.nan, "epochs": 0, "predict_seconds": math.nan}
+
+
+def _evaluate_one(m, test, noises, validation, seed) -> dict[str, Any]:
+    from estimation import evaluate
+
+    ev = evaluate(
+        [m],
+        test,
+        list(noises),
+        validation,
+        table_length=7,
+        n_examples=0,
+        seed=seed,
+        progress=False,
+        log=lambda text: log(f"    {text}"),
+    )
+    return {"rows": ev.rows, "cost": ev.cost, "fitted": ev.fitted}
+
+
+# ----------------------------------------------------------------------------------------- outputs
+
+
+def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: list[str]) -> Path:
+    from estimation.report import comparison_table, cost_table, plot_error_grid
+    from mmwsim.files import write_text_atomic
+
+    budget = f"{args.budget_minutes:g} min"
+    n_test = {
+        sp: {r["kind"]: r["n"] for r in ev.rows if r["split"] == sp and r["kind"] in KINDS} for sp in SPLITS
+    }
+    parts = [
+        f"# The paper's comparison under one protocol: training budget {budget} per model\n",
+        f"Data set `{protocol['dataset']}`"
+        + (f" (content hash {protocol['content_hash'][:12]})" if protocol["content_hash"] else "")
+        + f". Every model was trained on the same {protocol['n_train']} training trajectories "
+        f"(epochs of {protocol['epoch_size']} drawn afresh, fingerprints with fresh {protocol['sigma']:g} dB "
+        f"noise) with early stopping on the loss over the same {protocol['n_validation']} validation "
+        f"trajectories (patience {protocol['patience']} epochs, at most {protocol['max_epochs']} epochs) and "
+        f"a wall-clock budget of {budget} per model: no epoch starts after it. The weights of the best "
+        "validation epoch are evaluated. All methods see the same noisy fingerprints per split and noise "
+        "level. Mean per-trajectory RMSE (m); *seen*: test trajectories outside the spatial hold-out "
+        "region, *held-out*: those touching it.\n",
+        "Test trajectories (vehicle / pedestrian / all): "
+        + "; ".join(
+            f"{SPLIT_LABELS[sp]} {n.get('vehicle', 0)} / {n.get('pedestrian', 0)} / {n.get('all', 0)}"
+            for sp, n in n_test.items()
+        )
+        + ".\n",
+    ]
+    for task, title in (
+        ("tracking", "## Tracking, 7-step sequences"),
+        (
+            "forecasting",
+            f"## Forecasting: the {protocol['horizon']} steps after {protocol['t_obs']} observed ones",
+        ),
+    ):
+        t = comparison_table(ev, task, list(SPLITS), args.noises, KINDS, order, SPLIT_LABELS)
+        if t:
+            parts.append(f"{title}\n\n{t}")
+    parts.append(
+        "## Cost\n\nTraining time is the sum of the finished epochs (validation included); prediction time "
+        "is measured on the seen split at the first noise level, on this machine (noisy when shared).\n\n"
+        + cost_table(ev, {"best_epoch": "Best epoch", "ended": "Ended by"})
+    )
+    if skipped:
+        parts.append("Left out: " + "; ".join(skipped) + ".\n")
+    parts.append("![error against sequence length](error_vs_length.png)\n")
+    md = out / "paper_table.md"
+    write_text_atomic(md, "\n".join(parts))
+    panels = [(sp, s) for s in args.noises for sp in SPLITS]
+    plot_error_grid(
+        ev, panels, out / "error_vs_length.png", KINDS, methods=order, split_labels=SPLIT_LABELS, log_y=True
+    )
+    return md
+
+
+if __name__ == "__main__":
+    sys.exit(main())

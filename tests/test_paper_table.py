@@ -1,0 +1,106 @@
+"""benchmarks/paper_table.py on a toy data set: one protocol for every model, a resumable run
+(killed mid-training, then continued), and the Markdown table and PNG plot it writes."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "paper_table.py"
+TOY = "toy:n=48,length=7"
+
+
+@pytest.fixture(scope="module")
+def paper_table():
+    spec = importlib.util.spec_from_file_location("paper_table", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _args(out: Path) -> list[str]:
+    return [
+        TOY,
+        "--out",
+        str(out),
+        "--budget-minutes",
+        "0.05",
+        "--models",
+        "conv1d",
+        "gru",
+        "--tasks",
+        "tracking",
+        "forecasting",
+        "--noises",
+        "6",
+        "9",
+        "--classical",
+        "oracle",
+        "knn-kalman",
+    ]
+
+
+def test_paper_table_resumes_and_writes_the_table(paper_table, tmp_path, capsys):
+    out = tmp_path / "table"
+    # Killed after the second epoch of the first run: the run keeps its checkpoint, no table yet.
+    env = dict(os.environ, MMWSIM_FAULT="train.checkpointed@2:kill")
+    killed = subprocess.run(
+        [sys.executable, str(SCRIPT), *_args(out)], env=env, capture_output=True, text=True
+    )
+    assert killed.returncode != 0
+    first = out / "runs" / "conv1d-tracking"
+    assert (first / "checkpoint.pt").exists() and not (out / "paper_table.md").exists()
+
+    # Rerun: the killed run continues from its checkpoint, the others train, all are evaluated.
+    assert paper_table.main(_args(out)) == 0
+    text = capsys.readouterr().out
+    assert "conv1d-tracking: resuming after" in text and "resuming conv1d after epoch 2" in text
+    runs = ("conv1d-tracking", "gru-tracking", "conv1d-forecasting", "gru-forecasting")
+    for name in runs:
+        assert (out / "runs" / name / "model.pt").exists()
+    md = (out / "paper_table.md").read_text()
+    assert "training budget 0.05 min per model" in md
+    tracking, rest = md.split("## Tracking", 1)[1].split("## Forecasting", 1)
+    forecasting, cost = rest.split("## Cost", 1)
+    for section in (tracking, forecasting):
+        assert "6 dB seen veh." in section and "9 dB held-out all" in section
+        assert "| conv1d |" in section and "| gru |" in section and "| knn-kalman |" in section
+    for name in (*runs, "knn-kalman-tracking", "knn-kalman-forecasting"):
+        assert f"| {name} |" in cost
+    png = out / "error_vs_length.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+    # A third run retrains and re-evaluates nothing.
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}
+    assert paper_table.main(_args(out)) == 0
+    text = capsys.readouterr().out
+    assert text.count("finished before") == 4 and "evaluating" not in text and "cached" in text
+    assert stamps == {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}
+
+    # Another protocol in the same folder is refused with one line.
+    assert paper_table.main(_args(out) + ["--epoch-size", "16"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "another protocol" in err and "\n" not in err
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        ["--budget-minutes", "0"],
+        ["--models", "lstm", "bert"],
+        ["--noises", "nan"],
+        ["--tasks", "planning"],
+        ["--max-trajectories", "-1"],
+    ],
+)
+def test_paper_table_bad_arguments(paper_table, tmp_path, capsys, bad):
+    assert paper_table.main([TOY, "--out", str(tmp_path / "t"), *bad]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("paper_table.py: error:") and "\n" not in err
+    assert not (tmp_path / "t").exists()

@@ -31,7 +31,7 @@ _EXPORTS = {
     ".classical": ("KnnKalman", "MatchSmoother"),
     ".data": ("Batch", "BatchSampler", "Normaliser", "SequenceSet"),
     ".errors": ("EstimationError",),
-    ".estimator": ("Estimator", "TrainConfig"),
+    ".estimator": ("Estimator", "OnlineTracker", "TrainConfig"),
     ".evaluation": (
         "Evaluation",
         "KnnKalmanMethod",

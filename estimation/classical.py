@@ -21,8 +21,9 @@ from .data import SequenceSet
 from .errors import EstimationError
 from .matching import FingerprintMatcher
 from .metrics import trajectory_rmse
-from .smoothing.hmm import candidate_features, cell_mean
 from .smoothing.kalman import kalman_forecast, rts_smoother
+from .smoothing.motion import MixtureMotion
+from .smoothing.online import CandidateFilter
 
 __all__ = ["KnnKalman", "MatchSmoother"]
 
@@ -95,9 +96,9 @@ class KnnKalman:
 class MatchSmoother:
     """Fingerprint matching with a hidden-Markov constant-velocity smoother over candidates (tracking).
 
-    Every step keeps its ``search`` most likely grid points; a random walk prunes them to ``k`` and
-    the constant-velocity model's posterior mean over those is the estimate
-    (:func:`~estimation.smoothing.hmm.candidate_features`). It has no parameters to fit: this is
+    Every step keeps its ``search`` most likely grid points; random-walk filters prune them to
+    ``k`` and the constant-velocity model's smoothed posterior mean over those is the estimate
+    (:class:`~estimation.smoothing.online.CandidateFilter` without its sub-cell stage). It has no parameters to fit: this is
     ``tn-match`` before training without its measured motion tables (and its sub-cell stage).
 
     Parameters
@@ -121,9 +122,15 @@ class MatchSmoother:
         log-likelihoods ``(n, T, search)``."""
         return self.matcher.candidate_points(bits, self.n_search)
 
+    def filter(self, xy: torch.Tensor, score: torch.Tensor) -> CandidateFilter:
+        """The candidate filter run forward over :meth:`search`'s candidates ``xy (n, T, search,
+        2)`` metres and ``score (n, T, search)``: its :meth:`~CandidateFilter.smooth` gives any
+        prefix's estimate."""
+        return CandidateFilter(MixtureMotion(), None, k=self.k).run(xy, score)
+
     def smooth(self, xy: torch.Tensor, score: torch.Tensor) -> np.ndarray:
         """Posterior-mean positions ``(n, T, 2)`` metres of :meth:`search`'s candidates."""
-        return cell_mean(*candidate_features(xy, score, self.k)).numpy().astype(np.float64)
+        return self.filter(xy, score).smooth()[2].numpy().astype(np.float64)
 
     def predict(self, bits: torch.Tensor) -> np.ndarray:
         """``bits (n, T, M, N_s)`` -> ``(n, T, 2)`` metres."""

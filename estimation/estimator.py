@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -20,9 +21,10 @@ from .errors import EstimationError
 from .matching import FingerprintMatcher
 from .models import ModelSpec, build_network, count_parameters, model_spec
 from .names import LOSSES, TASKS, Loss, ModelName, Task
-from .smoothing.hmm import candidate_features
+from .smoothing.motion import MixtureMotion
+from .smoothing.online import CandidateFilter
 
-__all__ = ["TrainConfig", "Estimator", "MODEL_FILE"]
+__all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
 MODEL_FILE = "model.pt"
 
@@ -212,20 +214,34 @@ class Estimator(nn.Module):
             )
         return self.matcher.candidate_points(bits, self.net.search)
 
+    def candidate_filter(self) -> CandidateFilter:
+        """A fresh online filter over the grid's match candidates with the network's motion
+        tables (:class:`~estimation.smoothing.online.CandidateFilter`): feed it one step of
+        :meth:`search` results at a time, then :meth:`~CandidateFilter.smooth` gives what the
+        network reads for any prefix. Only for a grid-reading network."""
+        if not self.uses_grid:
+            raise EstimationError(f"{self.name} reads the bits, not match candidates")
+        net = self.net
+        motion = net.motion if bool(net.motion.fitted) else MixtureMotion()  # else the hand-set one
+        return CandidateFilter(motion, net.motion_fine, float(net.grid_step), net.k)
+
     def inputs(
         self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
-        grid-reading network its smoothed candidates ``(xy (B, T, k, 2) metres, posteriors
-        (B, T, k, P))`` (see :func:`~estimation.smoothing.hmm.candidate_features`) and the
-        classical estimate ``(B, T, 2)`` metres it starts from (``net.smoothed``), from the bits or
-        from their :meth:`search` result ``found``."""
+        grid-reading network its filtered and smoothed candidates ``(xy (B, T, k, 2) metres,
+        posteriors (B, T, k, P))`` and the classical estimate ``(B, T, 2)`` metres it starts from
+        (see :meth:`candidate_filter`), from the bits or from their :meth:`search` result
+        ``found``."""
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found
-        motion = self.net.motion if bool(self.net.motion.fitted) else None  # else the hand-set one
-        kxy, post = candidate_features(xy, score, self.net.k, motion=motion)
-        return kxy, post, self.net.smoothed(kxy, post)
+        return self.candidate_filter().run(xy, score).smooth()
+
+    def tracker(self) -> OnlineTracker:
+        """An online tracker of a batch of users: :meth:`OnlineTracker.update` takes each new
+        fingerprint and returns the users' current positions in constant time per step."""
+        return OnlineTracker(self)
 
     def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor:
         """Normalised output ``(B, T_out, 2)`` for bits or :meth:`inputs`; ``y`` (metres) enables
@@ -295,3 +311,52 @@ class Estimator(nn.Module):
             path, MODEL_FORMAT, ("config", "n_beams", "n_bins", "normaliser", "state_dict")
         )
         return cls.from_state(state, str(path))
+
+
+class OnlineTracker:
+    """Tracks a batch of users one fingerprint at a time (see :meth:`Estimator.tracker`).
+
+    For a grid-reading network (``tn-match``) each :meth:`update` runs the matcher on the new
+    fingerprints and one step of the candidate filter, so it costs the same at every step; for
+    the others, which read whole sequences, it runs the network on the sequence so far.
+    """
+
+    def __init__(self, estimator: Estimator):
+        if not estimator.uses_grid and estimator.config.task != "tracking":
+            raise EstimationError(
+                f"{estimator.name} forecasts from whole sequences: it has no current position"
+            )
+        self.est = estimator
+        self.filter = estimator.candidate_filter() if estimator.uses_grid else None
+        self._bits: list[torch.Tensor] = []
+
+    @property
+    def steps(self) -> int:
+        """Fingerprints seen so far."""
+        return len(self._bits)
+
+    def update(self, bits: torch.Tensor) -> np.ndarray:
+        """Add one fingerprint per user, ``bits (B, M, N_s)``; returns their current positions
+        ``(B, 2)`` float64 metres (the filtered estimate: the last step given the steps so far)."""
+        bits = torch.as_tensor(bits)
+        if bits.ndim != 3 or tuple(bits.shape[1:]) != (self.est.n_beams, self.est.n_bins):
+            raise EstimationError(
+                f"one step's fingerprints must be (B, {self.est.n_beams}, {self.est.n_bins}), "
+                f"got {tuple(bits.shape)}"
+            )
+        if self._bits and bits.shape[0] != self._bits[0].shape[0]:
+            raise EstimationError(f"a step of {bits.shape[0]} users after steps of {self._bits[0].shape[0]}")
+        self._bits.append(bits)
+        if self.filter is None:
+            return self.est.predict(torch.stack(self._bits, 1).float())[:, -1].double().numpy()
+        xy, score = self.est.search(bits[:, None].float())
+        return self.filter.update(xy[:, 0], score[:, 0])
+
+    def track(self) -> torch.Tensor:
+        """The network's estimate ``(B, T, 2)`` metres of every step so far (the smoothed track;
+        the forecast for a forecasting network)."""
+        if not self._bits:
+            raise EstimationError("no fingerprints yet: call update first")
+        if self.filter is None:
+            return self.est.predict(torch.stack(self._bits, 1).float())
+        return self.est.predict(self.filter.smooth())

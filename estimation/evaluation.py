@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -26,6 +26,9 @@ from .metrics import summarise_by_kind, trajectory_rmse
 from .names import CLASSICAL_NAMES, Task
 from .noise import noisy_bits
 from .training import read_run_info
+
+if TYPE_CHECKING:
+    from .oracle import OracleMethod
 
 __all__ = [
     "Evaluation",
@@ -115,21 +118,27 @@ class NetworkMethod:
         return self
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
-        """Predictions for inputs cropped to each length: ``{T_in: (pred (n, T_out, 2), seconds)}``."""
-        grid = self.est.uses_grid  # a grid-reading network searches per step, then smooths each prefix
+        """Predictions for inputs cropped to each length: ``{T_in: (pred (n, T_out, 2), seconds)}``.
 
-        def finish(found, L: int) -> np.ndarray:
-            preds = []
-            for k in range(0, len(bits), _BATCH):
-                if grid:
-                    x = self.est.inputs(found=tuple(f[k : k + _BATCH, :L] for f in found))
-                else:
-                    x = found[k : k + _BATCH, :L].float()
-                preds.append(self.est.predict(x))
-            return torch.cat(preds).numpy().astype(np.float64)
+        A grid-reading network's candidate filter runs forward once over the longest crop (one
+        update per step); each length then costs one backward pass over its steps and the network."""
+        if not self.est.uses_grid:
+            return _per_prefix(bits, lengths, lambda b: b, lambda b, L: self._predict(b[:, :L].float()))
 
-        return _per_prefix(
-            bits, lengths, (lambda b: self.est.search(b.float())) if grid else (lambda b: b), finish
+        def forward(b: torch.Tensor) -> list:
+            parts = (self.est.search(b[k : k + _BATCH].float()) for k in range(0, len(b), _BATCH))
+            return [self.est.candidate_filter().run(*found) for found in parts]
+
+        def finish(filters: list, L: int) -> np.ndarray:
+            return torch.cat([self.est.predict(f.smooth(L)) for f in filters]).numpy().astype(np.float64)
+
+        return _per_prefix(bits, lengths, forward, finish)
+
+    def _predict(self, x: torch.Tensor) -> np.ndarray:
+        return (
+            torch.cat([self.est.predict(x[k : k + _BATCH]) for k in range(0, len(x), _BATCH)])
+            .numpy()
+            .astype(np.float64)
         )
 
 
@@ -204,31 +213,37 @@ class MatchSmootherMethod:
         return _per_prefix(
             bits,
             lengths,
-            lambda b: self.model.search(b.float()),
-            lambda f, L: self.model.smooth(f[0][:, :L], f[1][:, :L]),
+            lambda b: self.model.filter(*self.model.search(b.float())),
+            lambda f, L: f.smooth(L)[2].numpy().astype(np.float64),
         )
 
 
 def classical_method(
     name: str, task: Task = "tracking", t_obs: int = 5, horizon: int = 2, fit_length: int = 7, seed: int = 0
-) -> KnnKalmanMethod | MatchSmootherMethod:
-    """The classical tracker ``name`` (one of :data:`estimation.names.CLASSICAL_NAMES`) as a method.
+) -> KnnKalmanMethod | MatchSmootherMethod | OracleMethod:
+    """The untrained tracker ``name`` (one of :data:`estimation.names.CLASSICAL_NAMES`) as a method.
 
     ``task``, ``t_obs`` and ``horizon`` set what ``knn-kalman`` estimates, ``fit_length`` the
-    validation crops its parameters are fitted on; ``match-cv`` tracks and fits nothing.
+    validation crops its parameters are fitted on; ``match-cv`` tracks and fits nothing. ``oracle``
+    (the floor, :class:`~estimation.oracle.OracleMethod`, tracking) still needs its data set:
+    ``use_dataset(path)`` before :func:`evaluate`.
     """
     if name == "knn-kalman":
         return KnnKalmanMethod(task, t_obs, horizon, fit_length, seed=seed)
     if name == "match-cv":
         return MatchSmootherMethod()
+    if name == "oracle":
+        from .oracle import OracleMethod  # scipy and shapely only when asked for
+
+        return OracleMethod(seed=seed)
     raise EstimationError(f"unknown classical tracker {name!r} (choose from {', '.join(CLASSICAL_NAMES)})")
 
 
 def method(
     run: str | os.PathLike, **classical_options: Any
-) -> NetworkMethod | KnnKalmanMethod | MatchSmootherMethod:
-    """An evaluation method by what names it: a classical tracker (see :func:`classical_method`,
-    which ``classical_options`` go to) or a training run folder."""
+) -> NetworkMethod | KnnKalmanMethod | MatchSmootherMethod | OracleMethod:
+    """An evaluation method by what names it: a classical tracker or the oracle (see
+    :func:`classical_method`, which ``classical_options`` go to) or a training run folder."""
     if str(run) in CLASSICAL_NAMES:
         return classical_method(str(run), **classical_options)
     if not Path(run).is_dir():

@@ -298,7 +298,9 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
     assert float(est.net.grid_step) == 1.0
     assert torch.equal(est.net.motion_fine.log_accel_table, lattice.log_accel_table)
-    assert torch.allclose(fine, subcell_mean(xy, post[..., 0], post[..., -1], lattice), atol=1e-5)
+    # the online filter splits the cells it finds likely so far and prunes pairs, so it is the
+    # dense sub-cell smoother up to a few centimetres (exactly when nothing is pruned: test_online)
+    assert (fine - subcell_mean(xy, post[..., 0], post[..., -1], lattice)).norm(dim=-1).max() < 0.05
 
 
 def test_snap_to_lattice_keeps_grid_points_for_odd_and_centres_cells_for_even():

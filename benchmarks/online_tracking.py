@@ -1,0 +1,96 @@
+"""tn-match's online candidate filter against the offline smoother it replaced: time and accuracy.
+
+Usage: python benchmarks/online_tracking.py RUN DATASET [--max 1000] [--sigma 6] [--threads 2]
+
+Both start from the same matcher candidates of the same noisy fingerprints (seen area, 7 steps):
+
+* offline: the dense smoothers re-run on every prefix (``candidate_features``, ``subcell_mean``:
+  ``O(T K^3)`` per prefix), what evaluation did before;
+* online: :class:`~estimation.smoothing.online.CandidateFilter`, one forward update per step and
+  one backward pass per prefix.
+
+Prints seconds per 1000 sequences for the 7-step table (search included, then without it), for
+every prefix 2..7 as evaluation runs them, and for one online update per user and step; the mean
+per-trajectory RMSE of both at 7 steps (vehicle / pedestrian / all), and the error of the
+current position (the filter's last step) against the smoothed last step.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+from _common import run_dataset_parser, test_draws
+
+
+def main() -> None:
+    from estimation import Estimator, summarise_by_kind, trajectory_rmse
+    from estimation.adapter import load_splits
+    from estimation.smoothing.hmm import candidate_features
+    from mmwsim._threads import set_threads
+
+    ap = run_dataset_parser(__doc__)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    set_threads(args.threads)
+    est = Estimator.load(args.run)
+    if est.name != "tn-match":
+        raise SystemExit(f"{args.run}: not a tn-match run")
+    sets, _ = load_splits(args.dataset, ("validation", "test/seen"))
+    est.attach(sets["validation"], args.sigma)
+    data, bits = test_draws(sets["test/seen"], args.max, args.sigma, 7)
+    n, per = data.n, 1000.0 / data.n
+    net = est.net
+
+    t = time.perf_counter()
+    found = [est.search(bits[a : a + 512].float()) for a in range(0, n, 512)]
+    t_search = time.perf_counter() - t
+
+    def offline(L: int) -> torch.Tensor:
+        out = []
+        for xy, score in found:
+            kxy, post = candidate_features(xy[:, :L], score[:, :L], net.k, motion=net.motion)
+            out.append(est.predict((kxy, post, net.smoothed(kxy, post))))
+        return torch.cat(out)
+
+    def timed(fn):
+        t = time.perf_counter()
+        r = fn()
+        return r, time.perf_counter() - t
+
+    off7, t_off7 = timed(lambda: offline(7))
+    _, t_off_all = timed(lambda: [offline(L) for L in range(2, 8)])
+    filters, t_fwd = timed(lambda: [est.candidate_filter().run(xy, score) for xy, score in found])
+    on7, t_bwd7 = timed(lambda: torch.cat([est.predict(f.smooth(7)) for f in filters]))
+    _, t_bwd_all = timed(
+        lambda: [torch.cat([est.predict(f.smooth(L)) for f in filters]) for L in range(2, 8)]
+    )
+
+    def row(label: str, pred: torch.Tensor) -> str:
+        s = summarise_by_kind(trajectory_rmse(pred.numpy(), data.positions), data.kind)
+        return f"{label}: vehicle {s['vehicle']['mean']:.3f} / pedestrian {s['pedestrian']['mean']:.3f} / all {s['all']['mean']:.3f} m"
+
+    print(f"{args.run} on {n} seen-area trajectories, 7 steps, {args.sigma:g} dB, {args.threads} threads")
+    print(f"search (both): {t_search * per:.2f} s per 1000 sequences")
+    print(
+        f"7-step table: offline {(t_search + t_off7) * per:.2f} s, online {(t_search + t_fwd + t_bwd7) * per:.2f} s"
+        f" per 1000 ({(t_search + t_off7) / (t_search + t_fwd + t_bwd7):.1f}x); without the search"
+        f" {t_off7 * per:.2f} s against {(t_fwd + t_bwd7) * per:.2f} s ({t_off7 / (t_fwd + t_bwd7):.1f}x)"
+    )
+    print(
+        f"prefixes 2..7 (evaluation): offline {(t_search + t_off_all) * per:.2f} s, online"
+        f" {(t_search + t_fwd + t_bwd_all) * per:.2f} s per 1000 ({(t_search + t_off_all) / (t_search + t_fwd + t_bwd_all):.1f}x)"
+    )
+    print(f"online update: {(t_search + t_fwd) / 7 * 1e3 / n:.3f} ms per user and step (search included)")
+    print(row("offline", off7))
+    print(row("online ", on7))
+    now = np.concatenate([f.positions[-1] for f in filters])
+    err_now = np.linalg.norm(now - data.positions[:, -1], axis=-1).mean()
+    err_last = np.linalg.norm(on7[:, -1].numpy() - data.positions[:, -1], axis=-1).mean()
+    print(f"current position (filtered last step) {err_now:.3f} m; the network's last step {err_last:.3f} m")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,247 @@
+"""Online tracking over fingerprint-match candidates: a filter updated once per fingerprint.
+
+:class:`CandidateFilter` is ``tn-match``'s classical part run forward in time. Each new step's
+candidates (the matcher's most likely grid points) go through three stages, each of which reads
+only the steps so far:
+
+1. pruning: random-walk filters at walking and driving step scales (:data:`STEP_SIGMAS`) from the
+   last step's kept candidates to this step's; the ``k`` best are kept;
+2. cells: the constant-velocity model over pairs of kept candidates, a beam of the most likely
+   pairs (:mod:`estimation.smoothing.beam`);
+3. sub-cells: the ``fine_k`` most likely cells of the step (by stage 2's filtered marginal) split
+   into ``n_sub x n_sub`` lattice points, and the same beam over those with the lattice's motion
+   table.
+
+Each update costs the same whatever the number of steps before it and gives the user's current
+position (the filtered sub-cell mean). :meth:`CandidateFilter.smooth` turns the stored messages of
+any prefix into the smoothed candidates, posteriors and positions the network reads, by one
+backward pass: a prefix's result never depends on the steps after it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mmwsim._threads import pieces, thread_map
+
+from .beam import motion_arrays, pair_backward, pair_forward, pair_start, rw_step
+from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _step_distances
+from .motion import SUBCELLS, MixtureMotion, MotionTable
+
+__all__ = ["BEAM", "FINE_BEAM", "FINE_CELLS", "CandidateFilter"]
+
+BEAM = 512  # pairs of cell candidates kept per step
+FINE_CELLS = 8  # cells per step split into sub-cells (more than the offline smoother's 6: it
+# chooses them by the filtered marginal, which knows less than the smoothed one)
+FINE_BEAM = 512  # pairs of sub-cell points kept per step
+
+
+def _log_softmax(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.asarray(torch.log_softmax(torch.from_numpy(x), dim=axis))
+
+
+def _threaded(kernel, n_batched: int, *args):
+    """``kernel(*args)`` over slices of the batch (the first ``n_batched`` arguments' first axis)
+    on the process's threads: the kernels release the GIL and treat every sequence alone, so the
+    result is the same for any number of threads."""
+    B = args[0].shape[0]
+    parts = pieces(B, 32)
+    if len(parts) == 1:
+        return kernel(*args)
+    outs = thread_map(lambda s: kernel(*(a[s] for a in args[:n_batched]), *args[n_batched:]), parts)
+    if isinstance(outs[0], tuple):
+        return tuple(np.concatenate(o) for o in zip(*outs, strict=True))
+    return np.concatenate(outs)
+
+
+class _Beam:
+    """The stored forward messages of one beam stage (cells or sub-cells) for a batch."""
+
+    def __init__(self, motion: MotionTable | MixtureMotion, beam: int):
+        self.m, self.beam = motion_arrays(motion), int(beam)
+        self.xy: list[np.ndarray] = []  # (B, K, 2) per step
+        self.lp: list[np.ndarray] = []  # (B, K) per step
+        self.pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
+        self.marg: list[np.ndarray] = []  # (B, K) filtered log marginals
+
+    def update(self, xy: np.ndarray, lp: np.ndarray) -> np.ndarray:
+        """Add a step's points ``xy (B, K, 2)`` and log likelihoods ``lp (B, K)``; returns the
+        step's filtered log marginal ``(B, K)``."""
+        m, t = self.m, len(self.xy)
+        if t == 0:
+            pairs, marg = None, _log_softmax(lp)
+        elif t == 1:
+            *pairs, marg = _threaded(
+                pair_start, 4, self.xy[0], xy, self.lp[0], lp, self.beam, m.step_table, m.bin
+            )
+        else:
+            *pairs, marg = _threaded(
+                pair_forward, 7, self.xy[-2], self.xy[-1], xy, *self.pairs[-1], lp,
+                self.beam, m.speed_edges, m.accel_table, m.bin, m.reach,
+            )  # fmt: skip
+        self.xy.append(xy)
+        self.lp.append(lp)
+        self.pairs.append(None if pairs is None else tuple(pairs))
+        self.marg.append(marg)
+        return marg
+
+    def smooth(self, T: int) -> list[np.ndarray]:
+        """Smoothed log marginals ``(B, K)`` of the first ``T`` steps given those ``T`` steps."""
+        if T == 1:
+            return [self.marg[0]]
+        m = self.m
+        pi, ci, la = self.pairs[T - 1]
+        beta = np.where(la > -1e299, 0.0, -1e300)
+        out: list[np.ndarray] = [np.empty(0)] * T
+        for t in range(T - 1, 0, -1):
+            pi, ci, la = self.pairs[t]
+            joint = la + beta
+            out[t] = _grouped(joint, ci, self.xy[t].shape[1])
+            if t == 1:
+                out[0] = _grouped(joint, pi, self.xy[0].shape[1])
+                break
+            beta = _threaded(
+                pair_backward, 11, self.xy[t - 2], self.xy[t - 1], self.xy[t], *self.pairs[t - 1], pi, ci, la, beta, self.lp[t],
+                m.speed_edges, m.accel_table, m.bin, m.reach,
+            )  # fmt: skip
+        return out
+
+
+def _grouped(val: np.ndarray, group: np.ndarray, K: int) -> np.ndarray:
+    """Normalised log-sum-exp of ``val (B, M)`` grouped by ``group (B, M)`` into ``(B, K)``."""
+    v = torch.from_numpy(val)
+    ok = v > -1e299
+    top = torch.where(ok, v, torch.tensor(-torch.inf, dtype=v.dtype)).amax(-1, keepdim=True)
+    w = torch.where(ok, (v - top).exp(), torch.zeros_like(v))
+    acc = torch.zeros(v.shape[0], K, dtype=v.dtype).scatter_add_(1, torch.from_numpy(group), w)
+    out = (acc / acc.sum(-1, keepdim=True)).log()
+    return np.asarray(out.clamp(min=-1e300))
+
+
+class CandidateFilter:
+    """Forward filter (and prefix smoother) over per-step match candidates of a batch of users.
+
+    Parameters
+    ----------
+    motion : MotionTable or MixtureMotion
+        Cell-level motion model, metres.
+    motion_fine : MotionTable, optional
+        Sub-cell motion model in grid units (:meth:`MotionTable.lattice`); without it (or unfitted)
+        the positions are the cell-level posterior means.
+    spacing : float, metres
+        Grid spacing.
+    k : int
+        Candidates kept per step.
+    beam, fine_beam : int
+        Pairs kept per step by the cell and sub-cell stages.
+    fine_k : int
+        Cells per step split into sub-cells.
+    n_sub : int
+        Sub-cells per axis.
+    """
+
+    def __init__(
+        self,
+        motion: MotionTable | MixtureMotion,
+        motion_fine: MotionTable | None = None,
+        spacing: float = 1.0,
+        k: int = 48,
+        beam: int = BEAM,
+        fine_k: int = FINE_CELLS,
+        fine_beam: int = FINE_BEAM,
+        n_sub: int = SUBCELLS,
+    ):
+        self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
+        self.cells = _Beam(motion, beam)
+        fitted = motion_fine is not None and bool(motion_fine.fitted)
+        self.fine = _Beam(motion_fine, fine_beam) if fitted else None
+        off = (np.arange(n_sub) - (n_sub - 1) / 2) / n_sub
+        self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
+        self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
+        self._rw: np.ndarray | None = None  # (B, k, n_s) filtered random-walk posteriors
+        self.positions: list[np.ndarray] = []  # (B, 2) filtered estimate of every step
+        self._top: list[np.ndarray] = []  # (B, fine_k) cells split at every step
+
+    @property
+    def steps(self) -> int:
+        """Steps seen so far."""
+        return len(self.positions)
+
+    def update(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> np.ndarray:
+        """Add one step: the matcher's candidates ``xy (B, S, 2)`` metres and their
+        log-likelihoods ``score (B, S)`` (as :meth:`FingerprintMatcher.candidate_points` gives
+        them). Returns the users' current positions ``(B, 2)`` float64 metres."""
+        xy = np.asarray(xy, dtype=np.float64)
+        lp = _log_softmax(np.asarray(score, dtype=np.float64))
+        if self.steps and xy.shape[0] != self.cells.xy[0].shape[0]:
+            raise ValueError(f"a step of {xy.shape[0]} users after steps of {self.cells.xy[0].shape[0]}")
+        if self._rw is None:
+            rw = np.repeat(lp[..., None], len(self._inv_two_s2), -1)
+        else:
+            rw = _threaded(rw_step, 4, self.cells.xy[-1], self._rw, xy, lp, self._inv_two_s2)
+        # A stable sort keeps ties in the matcher's order, so the result does not depend on the batch.
+        keep = np.argsort(-rw.max(-1), axis=1, kind="stable")[:, : self.k]
+        kxy = np.take_along_axis(xy, keep[..., None], 1)
+        klp = np.take_along_axis(lp, keep, 1)
+        self._rw = _log_softmax(np.take_along_axis(rw, keep[..., None], 1), axis=1)
+        marg = self.cells.update(kxy, klp)
+        if self.fine is None:
+            pos = (np.exp(marg)[..., None] * kxy).sum(1)
+        else:
+            fxy, flp = self._subcells(kxy, klp, marg)
+            pos = (np.exp(self.fine.update(fxy, flp))[..., None] * fxy).sum(1) * self.spacing
+        self.positions.append(pos)
+        return pos
+
+    def run(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> CandidateFilter:
+        """:meth:`update` with every step of ``xy (B, T, S, 2)`` metres and ``score (B, T, S)``
+        in turn; returns ``self``."""
+        for t in range(xy.shape[1]):
+            self.update(xy[:, t], score[:, t])
+        return self
+
+    def _subcells(self, kxy: np.ndarray, klp: np.ndarray, marg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The ``fine_k`` best cells by ``marg`` as lattice points ``(B, fine_k n_sub^2, 2)`` grid
+        units with their cells' log likelihoods."""
+        top = np.argsort(-marg, axis=1, kind="stable")[:, : self.fine_k]
+        self._top.append(top)
+        cxy = np.take_along_axis(kxy, top[..., None], 1) / self.spacing
+        clp = np.take_along_axis(klp, top, 1)
+        B, n = cxy.shape[0], len(self._offsets)
+        fxy = (cxy[:, :, None] + self._offsets).reshape(B, -1, 2)
+        return fxy, np.repeat(clp, n, axis=1)
+
+    def smooth(self, T: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """What the network reads for the first ``T`` steps (default all), given only those.
+
+        Returns
+        -------
+        xy : (B, T, k, 2) float32, metres; the kept candidates
+        post : (B, T, k, 2 + len(STEP_SIGMAS)) float32
+            Step-wise log posterior under a flat prior, the smoothed random-walk posteriors at
+            each step scale, then the smoothed constant-velocity posterior; clipped at -30.
+        fine : (B, T, 2) float32, metres; smoothed positions (sub-cell posterior means)
+        """
+        T = self.steps if T is None else int(T)
+        if not 1 <= T <= self.steps:
+            raise ValueError(f"can smooth 1..{self.steps} steps, not {T}")
+        xy = torch.from_numpy(np.stack(self.cells.xy[:T], 1)).float()
+        lp = torch.from_numpy(np.stack(self.cells.lp[:T], 1)).float()
+        d2 = _step_distances(xy)
+        cv = torch.from_numpy(np.stack(self.cells.smooth(T), 1)).float()
+        post = torch.stack([lp] + [_random_walk(d2, lp, s) for s in STEP_SIGMAS] + [cv], -1)
+        p = torch.softmax(cv.double(), -1)  # (B, T, k) smoothed cell marginals
+        if self.fine is None:
+            fine = (p[..., None] * xy).sum(2).float()
+        else:
+            # The sub-cells are the conditional mean given the cells split at each step, which
+            # were chosen before the later steps were seen; the smoothed mass of the other cells
+            # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
+            w = np.exp(np.stack(self.fine.smooth(T), 1))
+            sub = torch.from_numpy((w[..., None] * np.stack(self.fine.xy[:T], 1)).sum(2) * self.spacing)
+            inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(self._top[:T], 1)), 1.0)
+            mass = (p * inside).sum(-1, keepdim=True)
+            rest = (p * (1 - inside))[..., None] * xy.double()
+            fine = (mass * sub + rest.sum(2)).float()
+        return xy, post.clamp(min=LOGP_FLOOR), fine

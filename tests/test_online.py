@@ -1,0 +1,127 @@
+"""Online tracking: the beam filter over match candidates, its prefix smoother and the tracker."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from estimation import EstimationError, Estimator, TrainConfig, noisy_bits
+from estimation.smoothing.beam import motion_arrays
+from estimation.smoothing.hmm import velocity_posterior
+from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice
+from estimation.smoothing.online import CandidateFilter
+from estimation.synthetic import toy_sequence_set
+from mmwsim._threads import set_threads
+
+
+def _tracks(n=400, length=8, seed=0):
+    rng = np.random.default_rng(seed)
+    speed = rng.choice([1.4, 6.0], n)[:, None] + np.cumsum(rng.choice([-0.5, 0.0, 0.5], (n, length - 1)), 1)
+    heading = rng.uniform(0, 2 * np.pi, n)[:, None] + np.cumsum(rng.normal(0, 0.2, (n, length - 1)), 1)
+    steps = speed[..., None] * np.stack([np.cos(heading), np.sin(heading)], -1)
+    return np.concatenate([np.zeros((n, 1, 2)), np.cumsum(steps, 1)], 1)
+
+
+def _candidates(B=3, T=6, S=10, seed=1):
+    """Candidates scattered around true tracks (continuous positions: no ties on table bins)."""
+    g = np.random.default_rng(seed)
+    true = _tracks(B, T, seed)
+    xy = true[:, :, None] + g.normal(0, 2.0, (B, T, S, 2))
+    xy[:, :, 0] = true + g.normal(0, 0.3, (B, T, 2))
+    score = -np.square(xy - true[:, :, None]).sum(-1) / 4.0 + g.normal(0, 0.5, (B, T, S))
+    return torch.from_numpy(xy).float(), torch.from_numpy(score).float()
+
+
+MOTION = MotionTable().fit(_tracks())
+
+
+def test_unpruned_beam_is_the_dense_constant_velocity_smoother():
+    xy, score = _candidates()
+    f = CandidateFilter(MOTION, k=10, beam=100).run(xy, score)  # 10 x 10 pairs: nothing pruned
+    kxy, post, _ = f.smooth()
+    dense = velocity_posterior(kxy.double(), post[..., 0].double(), MOTION)
+    assert torch.allclose(post[..., -1].double(), dense.clamp(min=-30), atol=1e-4)
+    # every prefix's smoothed marginals are the dense smoother's of that prefix
+    for T in (1, 2, 3):
+        kxy, post, _ = f.smooth(T)
+        dense = velocity_posterior(kxy.double(), post[..., 0].double(), MOTION)
+        assert torch.allclose(post[..., -1].double(), dense.clamp(min=-30), atol=1e-4)
+
+
+@pytest.mark.parametrize("beam", [100, 12])
+def test_forward_filter_equals_the_smoothers_last_step_marginal(beam):
+    xy, score = _candidates(T=7)
+    f = CandidateFilter(MOTION, k=10, beam=beam)
+    for t in range(7):
+        f.update(xy[:, t], score[:, t])
+        smoothed_last = f.cells.smooth(t + 1)[-1]
+        np.testing.assert_allclose(np.exp(f.cells.marg[-1]), np.exp(smoothed_last), atol=1e-9)
+
+
+def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother():
+    tr = toy_sequence_set(64, 6, seed=0)
+    lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
+    xy, score = _candidates(B=2, T=4, S=4)
+    xy = torch.round(xy)  # grid points of a 1 m grid
+    f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36).run(xy, score)
+    kxy, post, fine = f.smooth()
+    # every cell split into its 3 x 3 lattice points, each with its cell's likelihood
+    sxy = (kxy.double()[:, :, :, None] + torch.tensor(f._offsets)).reshape(2, 4, 36, 2)
+    slp = post[..., 0].double()[..., None].expand(-1, -1, -1, 9).reshape(2, 4, 36)
+    # the dense smoother in float64 (in float32 a lattice step of exactly one bin can round down)
+    w = velocity_posterior(sxy, slp, lattice).exp()
+    assert torch.allclose(fine.double(), (w[..., None] * sxy).sum(2), atol=1e-5)
+
+
+def test_a_prefix_never_sees_the_steps_after_it():
+    xy, score = _candidates(T=7)
+    short = CandidateFilter(MOTION, k=6, beam=20).run(xy[:, :4], score[:, :4]).smooth()
+    longer = CandidateFilter(MOTION, k=6, beam=20).run(xy, score).smooth(4)
+    for a, b in zip(short, longer, strict=True):
+        assert torch.equal(a, b)
+
+
+def test_same_bytes_whatever_the_batch_and_the_threads():
+    xy, score = _candidates(B=70, T=5, S=12)
+    runs = []
+    for n in (1, 2):
+        set_threads(n)
+        try:
+            runs.append(CandidateFilter(MOTION, k=8, beam=30).run(xy, score).smooth())
+        finally:
+            set_threads(None)
+    one = CandidateFilter(MOTION, k=8, beam=30).run(xy[5:6], score[5:6]).smooth()
+    for a, b, c in zip(*runs, one, strict=True):
+        assert torch.equal(a, b) and torch.equal(a[5:6], c)
+
+
+def test_hand_set_mixture_is_tabulated_at_its_densities():
+    mix = MixtureMotion()
+    arr = motion_arrays(mix)
+    centre = -arr.reach + (np.arange(arr.accel_table.shape[1]) + 0.5) * arr.bin
+    i, j = np.searchsorted(centre, 0.125), np.searchsorted(centre, 3.125)
+    a = torch.tensor([[centre[i], centre[j]]], dtype=torch.float64)
+    exact = mix.log_accel(torch.zeros(1, 2, dtype=torch.float64), a)
+    assert arr.accel_table[0, i, j] == pytest.approx(float(exact[0]), abs=1e-5)
+
+
+def test_online_tracker_updates_per_step_and_tracks_like_predict():
+    va = toy_sequence_set(64, 5, seed=2)
+    bits = noisy_bits(va, 12.0, torch.Generator().manual_seed(3))  # noisy enough for aliases
+    torch.manual_seed(0)
+    cfg = TrainConfig(model="tn-match", sigma=12.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
+    tracker = est.tracker()
+    now = [tracker.update(bits[:, t]) for t in range(5)]
+    assert tracker.steps == 5 and now[-1].shape == (64, 2) and np.isfinite(now).all()
+    assert np.array_equal(np.stack(now, 1), np.stack(tracker.filter.positions, 1))
+    assert torch.allclose(tracker.track(), est.predict(bits.float()), atol=1e-5)
+    # the current estimates beat each step's single best match
+    err_now = np.linalg.norm(np.stack(now, 1) - va.positions, axis=-1).mean()
+    err_match = np.linalg.norm(est.matcher.match(bits) - va.positions, axis=-1).mean()
+    assert err_now < 0.95 * err_match
+    with pytest.raises(EstimationError, match="one step's fingerprints"):
+        tracker.update(bits[:, 0, :3])
+    with pytest.raises(EstimationError, match="after steps of 64"):
+        tracker.update(bits[:3, 0])

@@ -27,6 +27,9 @@ from .motion import MixtureMotion, MotionTable
 __all__ = ["MotionArrays", "motion_arrays", "pair_backward", "pair_forward", "pair_start", "rw_step"]
 
 _NEG = -1e300  # log of a pair that was pruned (or an impossible one)
+# A term this far (log) below the largest of its sum changes it by less than float64 resolves
+# (e^-40 = 4e-18), so its exponential is not computed.
+_NEGLIGIBLE = -40.0
 
 
 class MotionArrays(NamedTuple):
@@ -125,7 +128,7 @@ def rw_step(prev_xy, prev_f, xy, lp, inv_two_s2):
                     dx = xy[b, j, 0] - prev_xy[b, i, 0]
                     dy = xy[b, j, 1] - prev_xy[b, i, 1]
                     e = prev_f[b, i, s] - m - (dx * dx + dy * dy) * inv_two_s2[s]
-                    if e > -700.0:
+                    if e > _NEGLIGIBLE:
                         acc += math.exp(e)
                 v = (math.log(acc) + m if acc > 0 else -690.0 + m) + lp[b, j]
                 out[b, j, s] = v
@@ -261,7 +264,9 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
                 continue
             a1 = ci[b, q]
             for j in range(K):
-                dense[a1, j] += math.exp(sc[q, j] - top)
+                e = sc[q, j] - top
+                if e > _NEGLIGIBLE:
+                    dense[a1, j] += math.exp(e)
         for i in range(Kp):
             for j in range(K):
                 d = dense[i, j]

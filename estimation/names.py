@@ -27,6 +27,7 @@ ModelName = Literal["tn", "tn-match", "lstm", "gru", "rnn", "tcn", "conv1d"]
 """The trainable networks (:data:`estimation.models.MODELS` holds their specifications)."""
 MODEL_NAMES: tuple[ModelName, ...] = get_args(ModelName)
 
-ClassicalName = Literal["knn-kalman", "match-cv"]
-"""The classical trackers, evaluated without training (:data:`estimation.evaluation.CLASSICAL`)."""
+ClassicalName = Literal["knn-kalman", "match-cv", "oracle"]
+"""The trackers evaluated without training (:func:`estimation.evaluation.classical_method`): the two
+classical ones and the ``oracle`` floor (:mod:`estimation.oracle`)."""
 CLASSICAL_NAMES: tuple[ClassicalName, ...] = get_args(ClassicalName)

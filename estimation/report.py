@@ -32,6 +32,12 @@ _KIND_ORDER = ("vehicle", "pedestrian", "hybrid", "static", "all")
 _KIND_SHORT = {"vehicle": "veh.", "pedestrian": "ped.", "hybrid": "hyb.", "static": "stat."}
 
 
+def _floor_first(methods: list[str]) -> list[str]:
+    """``methods`` with the ``oracle`` floor (:mod:`estimation.oracle`) first, when present, so
+    that every table opens with the best error reachable on the data."""
+    return sorted(methods, key=lambda m: m != "oracle")
+
+
 def _fmt(v: float) -> str:
     return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}"
 
@@ -58,7 +64,7 @@ def accuracy_table(ev: Evaluation, split: str, task: str = "tracking") -> str:
     kinds = [k for k in _KIND_ORDER if any(r["kind"] == k for r in rows)]
     head = ["Model", "Noise (dB)"] + [f"{k.capitalize()} mean (m)" for k in kinds] + ["All p95 (m)", "n"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    methods = _floor_first(list(dict.fromkeys(r["method"] for r in rows)))
     for m in methods:
         for sigma in sorted({r["sigma"] for r in rows if r["method"] == m}):
             by = {r["kind"]: r for r in rows if r["method"] == m and r["sigma"] == sigma}
@@ -91,7 +97,7 @@ def comparison_table(
     if not rows:
         return ""
     present = list(dict.fromkeys(r["method"] for r in rows))
-    order = [m for m in (methods or present) if m in present]
+    order = _floor_first([m for m in (methods or present) if m in present])
     labels = split_labels or {}
     columns = [
         (sigma, split, kind)
@@ -122,7 +128,8 @@ def cost_table(ev: Evaluation, extra: dict[str, str] | None = None) -> str:
         *extra.values(),
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for m, c in ev.cost.items():
+    for m in _floor_first(list(ev.cost)):
+        c = ev.cost[m]
         more = "".join(f" {c.get(k, '–')} |" for k in extra)
         lines.append(
             f"| {m} | {c['parameters']:.3g} | {_hms(c['train_seconds'])} | {c['epochs'] or '–'} | "

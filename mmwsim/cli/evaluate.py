@@ -13,12 +13,15 @@ Each RUN is a folder written by `mmwsim train`, or the name of a classical track
 training: knn-kalman (the paper's baseline: nearest-fingerprint matching on the data-set grid plus a
 constant-velocity Kalman smoother, fitted per noise level on the validation split) or match-cv (the
 most likely grid points of every step smoothed by a hidden-Markov constant-velocity model: tn-match
-before training). The data set is the one the first run was trained on unless --dataset is given
-(required when only classical trackers are named).
+before training), or oracle: the floor, a particle smoother that knows the generator's motion model
+and the exact fingerprint likelihood (needs a data set with generated trajectories; its row comes
+first). The data set is the one the first run was trained on unless --dataset is given (required
+when only classical trackers are named).
 
 Examples:
   mmwsim evaluate runs/tn runs/lstm knn-kalman --noise 6 9 --out report --rrd report/trajectories.rrd
   mmwsim evaluate knn-kalman match-cv --dataset data.zarr
+  mmwsim evaluate runs/tn-match oracle --noise 6 --max-trajectories 500
 
 By default the test split is evaluated as test/seen (trajectories outside the spatial hold-out
 region) and test/holdout (those touching it); empty parts are skipped. Writes into --out:
@@ -124,6 +127,9 @@ def _run(args, out) -> int:
     if not dataset:
         raise EstimationError("no data set: give --dataset (needed when only classical trackers are named)")
     names = tuple(dict.fromkeys([*args.split, args.val_split]))
+    for m in methods:
+        if hasattr(m, "use_dataset"):  # the oracle knows the data set's generator
+            m.use_dataset(dataset)
     sets, _ = load_sets(dataset, names)
     first = next(iter(sets.values()))
     for m in methods:

@@ -1,0 +1,81 @@
+"""The oracle floor beside the trackers, on the same noise draws.
+
+Usage: python benchmarks/oracle_floor.py DATASET [RUN] [--max 1000] [--sigma 6] [--length 7]
+       [--convergence 0.25,1,4] [--threads 1]
+
+The oracle (:mod:`estimation.oracle`) knows the generator's motion model and the exact fingerprint
+likelihood, so its error is the floor any tracker can reach on the data set's trajectories. The
+script evaluates it with knn-kalman, match-cv and, if given, a training run (e.g. tn-match) through
+:func:`estimation.evaluate` (one noise draw per split shared by all) on test/seen and
+test/holdout, and prints the mean per-trajectory RMSE per kind at ``--length`` steps with each
+method's prediction time. ``--convergence F1,F2,...`` adds the oracle with its default particle
+counts scaled by each factor (same draws), to show how far Monte-Carlo error still moves it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+
+def main() -> None:
+    from estimation import cost_table, evaluate, method
+    from estimation.adapter import load_splits
+    from estimation.oracle import ORACLE_PARTICLES, OracleMethod
+    from estimation.report import comparison_table
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("dataset")
+    ap.add_argument("run", nargs="?", help="a training run folder (e.g. a tn-match run) to compare")
+    ap.add_argument("--max", type=int, default=1000, help="trajectories per split (seeded subset)")
+    ap.add_argument("--sigma", type=float, default=6.0, help="fingerprint noise, dB (default 6)")
+    ap.add_argument("--length", type=int, default=7, help="steps of the table (default 7)")
+    ap.add_argument("--convergence", help="factors on the oracle's particle counts, e.g. 0.25,1,4")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+
+    splits = ("test/seen", "test/holdout")
+    sets, _ = load_splits(args.dataset, ("validation", *splits))
+    t0 = time.perf_counter()
+    oracle = OracleMethod(args.dataset)
+    print(
+        f"oracle of {args.dataset}: built in {time.perf_counter() - t0:.1f} s, particles {ORACLE_PARTICLES}"
+    )
+    methods = [oracle]
+    for f in [float(v) for v in args.convergence.split(",")] if args.convergence else []:
+        m = OracleMethod(
+            oracle.oracle.with_particles({k: max(1, round(n * f)) for k, n in ORACLE_PARTICLES.items()})
+        )
+        m.name = f"oracle x{f:g}"
+        methods.append(m)
+    methods += [method("knn-kalman", fit_length=args.length), method("match-cv")]
+    if args.run:
+        methods.append(method(args.run))
+    ev = evaluate(
+        methods,
+        {s: sets[s] for s in splits},
+        [args.sigma],
+        sets["validation"],
+        lengths=[args.length],
+        table_length=args.length,
+        max_trajectories=args.max,
+    )
+    print()
+    print(f"mean per-trajectory RMSE (m), {args.length} steps, {args.sigma:g} dB")
+    print(
+        comparison_table(
+            ev, "tracking", list(splits), [args.sigma], ("vehicle", "pedestrian", "hybrid", "all")
+        )
+    )
+    print(cost_table(ev))
+    floor = {r["split"]: r["mean"] for r in ev.select(method="oracle", kind="all")}
+    for m in methods[1:]:
+        gap = {r["split"]: r["mean"] / floor[r["split"]] for r in ev.select(method=m.name, kind="all")}
+        print(f"{m.name}: " + ", ".join(f"{s} {g:.2f}x the floor" for s, g in gap.items()))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,226 @@
+"""The oracle floor (estimation.oracle): on data drawn from its own model it beats every method."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+import torch
+
+from estimation import (
+    CLASSICAL_NAMES,
+    EstimationError,
+    Estimator,
+    TrainConfig,
+    accuracy_table,
+    cost_table,
+    evaluate,
+    method,
+    noisy_bits,
+    trajectory_rmse,
+)
+from estimation.data import SequenceSet
+from estimation.evaluation import NetworkMethod
+from estimation.matching import FingerprintMatcher
+from estimation.oracle import Oracle, OracleMethod, _Space
+from estimation.synthetic import toy_grid
+from mmwsim.geometry.freespace import CoverageMask, FreeSpace
+from mmwsim.scene import ReceiverGrid
+from mmwsim.trajectories.generate import generate_kind
+from mmwsim.trajectories.motion import KINDS, PEDESTRIAN, STATIC, VEHICLE
+from mmwsim.trajectories.streets import StreetNetwork
+
+# A 24 m x 24 m toy city: four 6 m blocks, a cross of streets between them, a smooth toy PDP on a
+# 1 m grid. Slow vehicles keep 6-step drives inside it.
+GRID = ReceiverGrid((0.0, 0.0), 1.0, (24, 24))
+BLOCKS = [shapely.box(x, y, x + 6, y + 6) for x in (2, 15) for y in (2, 15)]
+MODELS = {
+    "static": STATIC,
+    "pedestrian": PEDESTRIAN,
+    "vehicle": VEHICLE.replace(mean_speed=3.0, max_speed=5.0, speed_change=1.0, clearance=1.0),
+}
+COUNTS = {"static": 8, "pedestrian": 36, "vehicle": 36}
+LENGTH = 6
+
+
+@pytest.fixture(scope="module")
+def world():
+    xy, pdp = toy_grid(24, 24, 1.0, 8, 12, seed=0)
+    valid = np.ones(GRID.size, dtype=bool)
+    valid[GRID.nearest_index(np.array([[5.0, 5.0], [18.0, 5.0]]))] = False  # two points without coverage
+    rows = np.flatnonzero(valid)
+    net = StreetNetwork.from_footprints(BLOCKS, GRID.bounds, 2.5, spur_length=3.0)
+
+    def draw(seed: int) -> SequenceSet:
+        """Trajectories from mmwsim's generator with the oracle's models, on the toy grid."""
+        rng = np.random.default_rng(seed)
+        pos, kind = [], []
+        for k, n in COUNTS.items():
+            fs = FreeSpace(BLOCKS, GRID.bounds, MODELS[k].clearance, CoverageMask(GRID, valid))
+            p, _ = generate_kind(
+                None, MODELS[k], n, LENGTH, rng, free_space=fs, streets=net if k == "vehicle" else None
+            )
+            pos.append(p)
+            kind.append(np.full(n, KINDS.index(k), dtype=np.int8))
+        p = np.concatenate(pos)
+        row_of = np.full(GRID.size, -1)
+        row_of[rows] = np.arange(len(rows))
+        index = row_of[GRID.nearest_index(p)]
+        assert (index >= 0).all()
+        return SequenceSet(
+            torch.from_numpy(pdp[rows]),
+            xy[rows],
+            index,
+            p.astype(np.float32),
+            np.concatenate(kind),
+            -115.0,
+            GRID.bounds,
+        )
+
+    def oracle(n_particles: int = 512, seed: int = 0) -> Oracle:
+        return Oracle(
+            GRID, valid, BLOCKS, GRID.bounds, MODELS, COUNTS, net, n_particles=n_particles, seed=seed
+        )
+
+    return {"test": draw(1), "validation": draw(2), "oracle": oracle, "valid": valid}
+
+
+def test_oracle_beats_every_method_on_data_from_its_own_model(world):
+    te, va = world["test"], world["validation"]
+    cfg = TrainConfig(model="tn-match", sigma=6.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    untrained = NetworkMethod(Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va), "tn-match")
+    methods = [method("knn-kalman"), method("match-cv"), untrained, OracleMethod(world["oracle"]())]
+    ev = evaluate(
+        methods, {"test": te}, [6.0], va, lengths=[3, LENGTH], table_length=LENGTH, log=lambda *_: None
+    )
+    for length in (3, LENGTH):
+        err = {r["method"]: r["mean"] for r in ev.select(length=length, kind="all")}
+        assert set(err) == {"oracle", "knn-kalman", "match-cv", "tn-match"}
+        others = min(v for k, v in err.items() if k != "oracle")
+        assert err["oracle"] < 0.85 * others, err
+    for kind in ("pedestrian", "vehicle"):
+        err = {r["method"]: r["mean"] for r in ev.select(length=LENGTH, kind=kind)}
+        assert err["oracle"] == min(err.values()), (kind, err)
+    # evaluated last, printed first: the floor opens every table
+    assert accuracy_table(ev, "test").splitlines()[2].startswith("| oracle |")
+    assert cost_table(ev).splitlines()[2].startswith("| oracle |")
+
+
+def test_prefix_estimates_see_only_their_steps_and_are_seeded(world):
+    te = world["test"]
+    bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))
+    lik = (
+        FingerprintMatcher(te.grid_pdp, te.grid_xy, 6.0, te.threshold, eps=1e-30)
+        .scores(bits.reshape(-1, *bits.shape[2:]).float())
+        .reshape(te.n, LENGTH, -1)
+    )
+    full = world["oracle"](256).smooth(lik, [3, LENGTH])
+    again = world["oracle"](256).smooth(lik, [3, LENGTH])
+    prefix = world["oracle"](256).smooth(lik[:, :3], [3])
+    other = world["oracle"](256, seed=1).smooth(lik, [LENGTH])
+    assert np.array_equal(full[LENGTH], again[LENGTH]) and np.array_equal(full[3], again[3])
+    assert np.array_equal(full[3], prefix[3])  # no look-ahead: the later fingerprints change nothing
+    assert not np.array_equal(full[LENGTH], other[LENGTH])
+    # another seed moves the estimates by Monte-Carlo error only
+    a, b = trajectory_rmse(full[LENGTH], te.positions), trajectory_rmse(other[LENGTH], te.positions)
+    assert abs(a.mean() - b.mean()) < 0.25 * a.mean()
+
+
+def test_fast_free_space_tests_agree_with_the_generators(world):
+    """The raster shortcut answers as mmwsim's FreeSpace (shapely) does, points and segments."""
+    g = world["oracle"]().grid
+    space = _Space(BLOCKS, GRID.bounds, 1.0, g, 0.25)
+    fs = FreeSpace(BLOCKS, GRID.bounds, 1.0, CoverageMask(GRID, world["valid"]))
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-1.0, 24.0, (20000, 2))
+    assert np.array_equal(space.points_ok(a), fs.points_ok(a))
+    a = a[fs.points_ok(a)]
+    h = rng.uniform(0, 2 * np.pi, len(a))
+    for step in (0.0, 1.4, 5.0):
+        b = a + step * np.column_stack([np.cos(h), np.sin(h)])
+        assert np.array_equal(space.segments_ok(a, b, 5), fs.segments_ok(a, b))
+
+
+def test_bad_input_raises_estimation_error(world):
+    te = world["test"]
+    oracle = world["oracle"](64)
+    with pytest.raises(EstimationError, match="n_particles"):
+        world["oracle"](0)
+    with pytest.raises(EstimationError, match="log-likelihoods must be"):
+        oracle.smooth(np.zeros((2, 3, 5)), [3])
+    with pytest.raises(EstimationError, match="prefix lengths"):
+        oracle.smooth(np.zeros((2, 3, oracle.grid.size)), [4])
+    with pytest.raises(EstimationError, match="NaN"):
+        oracle.smooth(np.full((2, 3, oracle.grid.size), np.nan), [3])
+    with pytest.raises(EstimationError, match="counts"):
+        Oracle(GRID, world["valid"], BLOCKS, GRID.bounds, MODELS, {"hybrid": 3})
+    with pytest.raises(EstimationError, match="needs the data set"):
+        OracleMethod().for_sigma(6.0, te)
+    with pytest.raises(EstimationError, match="for_sigma"):
+        OracleMethod(oracle).predict_lengths(torch.zeros(1, 3, 8, 12), [3])
+    with pytest.raises(EstimationError, match="toy"):
+        OracleMethod("toy:n=64")
+    with pytest.raises(EstimationError, match="not found"):
+        OracleMethod("/nonexistent/data.zarr")
+    wrong = FingerprintMatcher(te.grid_pdp[:10], te.grid_xy[:10], 6.0, te.threshold)
+    with pytest.raises(EstimationError, match="grid"):
+        oracle.track(torch.zeros(1, 3, 8, 12), wrong, [3])
+    assert "oracle" in CLASSICAL_NAMES and isinstance(method("oracle"), OracleMethod)
+
+
+def test_cli_refuses_the_oracle_on_a_toy_data_set(tmp_path, capsys):
+    from mmwsim.cli import main
+
+    assert main(["evaluate", "oracle", "--dataset", "toy:n=64,length=5", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "toy" in err
+
+
+class _Dataset:
+    """What the oracle reads of a data set: grid, validity, scene, content hash and the store
+    holding the generated trajectories (here a trajectory-only store, no PDPs)."""
+
+    def __init__(self, path, grid, valid, scene):
+        self.path, self.grid, self.valid, self._scene, self.content_hash = path, grid, valid, scene, "x"
+
+    def scene(self):
+        return self._scene
+
+
+def test_oracle_of_a_data_set_reads_its_generator(tmp_path):
+    """On the default city with a 25 m grid: the scene's buildings, the street network and the
+    stored generation attributes; given each step's true cell, it places moving users better
+    than the cell centres do."""
+    from mmwsim.scene import load_scene
+    from mmwsim.trajectories import write_trajectories
+    from mmwsim.trajectories.generate import generate
+    from mmwsim.trajectories.splits import split
+
+    scene = load_scene("default")
+    grid = ReceiverGrid((0.0, 0.0), 25.0, (17, 17))
+    inside = shapely.intersects_xy(shapely.union_all(scene.footprints), *grid.positions()[:, :2].T)
+    valid = ~inside
+    counts = {"static": 2, "pedestrian": 10, "hybrid": 4, "vehicle": 10}
+    t = generate(
+        scene,
+        counts,
+        5,
+        seed=3,
+        coverage=CoverageMask(grid, valid),
+        vehicles_on_streets=True,
+        free_space_bounds=grid.bounds,
+    )
+    write_trajectories(tmp_path / "t.zarr", split(t, (0.0, 0.0, 1.0)))
+    oracle = Oracle.from_dataset(
+        _Dataset(tmp_path / "t.zarr", grid, valid, scene), n_particles=256, resolution=0.5
+    )
+    assert oracle.kinds == list(KINDS) and type(oracle.motion["vehicle"]).__name__ == "_StreetMotion"
+    assert oracle.log_prior["pedestrian"] == pytest.approx(np.log(10 / 26))
+    test = split(t, (0.0, 0.0, 1.0))["test"]
+    moving = test.kind != KINDS.index("static")
+    rows = oracle.grid.rows(test.positions[moving])
+    lik = np.where(np.arange(oracle.grid.size) == rows[..., None], 0.0, -30.0)  # each step's true cell
+    est = oracle.smooth(lik, [5])[5]
+    assert np.isfinite(est).all() and oracle.dead == 0
+    cells = trajectory_rmse(oracle.grid.xy[rows], test.positions[moving]).mean()
+    assert trajectory_rmse(est, test.positions[moving]).mean() < 0.8 * cells

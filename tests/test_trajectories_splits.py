@@ -11,7 +11,9 @@ import scenes
 from mmwsim.cli import main
 from mmwsim.trajectories import (
     SPLITS,
+    Trajectories,
     TrajectoryError,
+    block_folds,
     list_splits,
     read_trajectories,
     split,
@@ -137,3 +139,109 @@ def test_cli_empty_free_area(tmp_path, capsys):
 def test_cli_missing_dataset(tmp_path, capsys):
     assert main(["trajectories", str(tmp_path / "nope"), "--pedestrian", "3"]) == 2
     assert "data set not found" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- spatial block folds
+
+AREA = (0.0, 0.0, 400.0, 400.0)
+
+
+def _blocks_union(folds, f):
+    return shapely.union_all([shapely.box(*r) for r in folds.blocks(f)])
+
+
+def test_block_folds_cover_every_trajectory_once_and_follow_the_crossing_rule(city):
+    t = generate(city, {"pedestrian": 300, "vehicle": 200, "static": 20}, 7, seed=4)
+    folds = block_folds(t, 100.0, 4, bounds=AREA)
+    n = len(t)
+    tested = np.concatenate([folds.test(f) for f in range(4)])
+    assert np.array_equal(np.sort(tested), np.arange(n))  # each trajectory tested in exactly one fold
+    assert np.array_equal(folds.fold, folds.fold_at(t.positions[:, 3]))  # the middle sample's block
+    for f in range(4):
+        area = _blocks_union(folds, f)
+        touching = np.array([shapely.LineString(p).intersects(area) for p in t.positions])
+        assert np.array_equal(folds.touches[:, f], touching)
+        train = folds.train(f)
+        assert np.array_equal(train, np.flatnonzero(~touching))  # trains only on ones never touching
+        assert not set(train) & set(folds.test(f))
+        strict = folds.test(f, strict=True)
+        assert set(strict) <= set(folds.test(f))
+        assert all(area.covers(shapely.LineString(p)) for p in t.positions[strict])
+    crossing = ~folds.inside
+    assert 0 < crossing.sum() < n  # both occur: crossing ones are tested once, trained nowhere they touch
+    assert (folds.touches.sum(axis=1) >= 1).all()
+
+
+def test_block_folds_are_spatially_disjoint_latin_and_deterministic():
+    folds = block_folds(np.zeros((0, 3, 2)), 100.0, 4, bounds=AREA)
+    boxes = [[shapely.box(*r) for r in folds.blocks(f)] for f in range(4)]
+    assert [len(b) for b in boxes] == [4, 4, 4, 4]
+    union = [shapely.union_all(b) for b in boxes]
+    for a in range(4):
+        for b in range(a + 1, 4):
+            assert shapely.intersection(union[a], union[b]).area == 0
+    assert shapely.union_all(union).area == pytest.approx(400.0 * 400.0)
+    table = folds.block_fold
+    assert (np.diff(table, axis=0) != 0).all() and (np.diff(table, axis=1) != 0).all()  # no shared edge
+    central = {int(table[j, i]) for j in (1, 2) for i in (1, 2)}
+    assert central == {0, 1, 2, 3}  # each fold holds one block next to the centre
+    # points take the fold of the block they are in, blocks half-open, the far edges closed
+    pts = np.array([[50.0, 50.0], [100.0, 50.0], [399.0, 399.0], [400.0, 400.0], [-5.0, 450.0]])
+    assert folds.fold_at(pts).tolist() == [table[0, 0], table[0, 1], table[3, 3], table[3, 3], table[3, 0]]
+
+    rng = np.random.default_rng(0)
+    pos = np.cumsum(rng.normal(0, 20, (200, 5, 2)), axis=1) + rng.uniform(0, 400, (200, 1, 2))
+    a, b = block_folds(pos, 100.0, 4, bounds=AREA), block_folds(pos, 100.0, 4, bounds=AREA)
+    assert np.array_equal(a.fold, b.fold) and np.array_equal(a.touches, b.touches)
+    perm = rng.permutation(200)
+    c = block_folds(pos[perm], 100.0, 4, bounds=AREA)
+    assert np.array_equal(c.fold, a.fold[perm]) and np.array_equal(c.touches, a.touches[perm])
+
+
+def test_block_folds_count_segments_and_borders():
+    pos = np.array(
+        [
+            [[10.0, 10.0], [50.0, 10.0], [150.0, 10.0]],  # middle sample in block (0, 0), ends in (1, 0)
+            [[95.0, 120.0], [95.0, 120.0], [120.0, 95.0]],  # its segment cuts across block (1, 1)
+            [[20.0, 20.0], [30.0, 30.0], [40.0, 40.0]],  # wholly inside block (0, 0)
+            [[100.0, 20.0], [100.0, 30.0], [100.0, 40.0]],  # on the border of (0, 0) and (1, 0)
+        ]
+    )
+    folds = block_folds(pos, 100.0, 4, bounds=AREA)
+    table = folds.block_fold
+    f00, f10, f01, f11 = table[0, 0], table[0, 1], table[1, 0], table[1, 1]
+    assert folds.fold.tolist() == [f00, f01, f00, f10]
+    assert set(np.flatnonzero(folds.touches[0])) == {f00, f10}
+    assert set(np.flatnonzero(folds.touches[1])) == {f01, f10, f11}  # no sample in (1, 1), a segment
+    assert folds.inside.tolist() == [False, False, True, False]
+    assert 0 in folds.test(f00) and 0 not in folds.test(f00, strict=True)
+    assert 0 not in folds.train(f00) and 0 not in folds.train(f10) and 0 in folds.train(f11)
+    assert 2 in folds.test(f00, strict=True)
+    # bounds default to what generation stores
+    t = Trajectories(pos, np.zeros(4), np.arange(4), np.zeros((4, 2)), attrs={"bounds": [[0, 0], [400, 400]]})
+    assert np.array_equal(block_folds(t).touches, folds.touches)
+    # an area that is not a multiple of the block: short last row and column, still every point in one
+    odd = block_folds(pos, 150.0, 2, bounds=(0.0, 0.0, 400.0, 400.0))
+    assert odd.block_fold.shape == (3, 3) and odd.blocks(0)[-1][2:] == (400.0, 400.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"block": 0.0}, "block side"),
+        ({"block": float("nan")}, "block side"),
+        ({"folds": 1}, "folds must be"),
+        ({"folds": 17}, "folds must be"),
+        ({"folds": 2.5}, "folds must be"),
+        ({"bounds": (0, 0, -1, 5)}, "X0 < X1"),
+    ],
+)
+def test_block_folds_bad_values(kwargs, message):
+    args = {"block": 100.0, "folds": 4, "bounds": AREA} | kwargs
+    with pytest.raises(TrajectoryError, match=message) as e:
+        block_folds(np.zeros((2, 3, 2)), **args)
+    assert len(str(e.value).splitlines()) == 1
+    with pytest.raises(TrajectoryError, match="bounds"):
+        block_folds(np.zeros((2, 3, 2)))
+    with pytest.raises(TrajectoryError, match="fold must be"):
+        block_folds(np.zeros((2, 3, 2)), bounds=AREA).test(4)

@@ -7,10 +7,12 @@ import math
 
 EPILOG = """\
 Stages: a coarse data set of the default scene (receivers every 2 m; --tiny: 8 m); 7-step user
-trajectories, those touching the hold-out region 220,190,260,216 (a stretch of the cross street
-east of the avenue) kept for testing only; a short training of the transformer (tn); the estimate
-of the held-out trajectories from fresh noisy fingerprints; and an Informed RRT* path inside the
-corridor around one estimated trajectory, against the exact shortest path in that corridor.
+trajectories, those touching the hold-out region 0,100,100,200 (a 100 m block, the west end of the
+cross street and shadowed side streets, chosen by spatial block cross-validation to be neither
+easier nor harder than the whole area) kept for testing only; a short training of the transformer
+(tn); the estimate of the held-out trajectories from fresh noisy fingerprints; and an Informed
+RRT* path inside the corridor around one estimated trajectory, against the exact shortest path in
+that corridor.
 
 DIR receives dataset.zarr (dataset-tiny.zarr), runs/tn (runs/tn-tiny), summary.json and demo.rrd,
 whose default blueprint has one tab per stage: scene and rays, coverage per beam, fingerprints over

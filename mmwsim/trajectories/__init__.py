@@ -21,7 +21,7 @@ from .generate import generate as generate_trajectories
 from .motion import EVENT_NAMES, KINDS, MOTION_MODELS, Kind, MotionModel, motion_model
 from .record import log_trajectories
 from .sequences import SequenceLoader, pdp_sequences
-from .splits import SPLITS, split, touches_region
+from .splits import SPLITS, BlockFolds, block_folds, split, touches_region
 from .store import is_trajectory_store, list_splits, read_trajectories, write_trajectories
 from .streets import StreetNetwork
 from .trajectories import Trajectories
@@ -35,10 +35,12 @@ __all__ = [
     "Kind",
     "MotionModel",
     "SPLITS",
+    "BlockFolds",
     "SequenceLoader",
     "StreetNetwork",
     "TrajectoryError",
     "Trajectories",
+    "block_folds",
     "generate_for_dataset",
     "generate_kind",
     "generate_trajectories",

@@ -3,11 +3,19 @@
 With a hold-out rectangle, every trajectory that touches it (a sample inside, or a segment
 crossing it) goes to the test split, and no training or validation trajectory enters it, so
 the test split measures generalisation to an area never seen in training.
+
+One rectangle is one place, easy or hard by chance. :func:`block_folds` cuts the whole area into
+square blocks and deals them to ``k`` folds in a Latin pattern (no two blocks that share an edge
+in one fold), so that each fold holds blocks from all over the area, and holding each fold out in
+turn tests every trajectory once, in a model that never saw its blocks (spatial block
+cross-validation): the held-out error then covers the whole area's streets, in line of sight and
+shadowed, in their own proportions.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -15,7 +23,7 @@ import shapely
 from .errors import TrajectoryError
 from .trajectories import Trajectories
 
-__all__ = ["SPLITS", "Region", "split", "touches_region"]
+__all__ = ["SPLITS", "BlockFolds", "Region", "block_folds", "split", "touches_region"]
 
 SPLITS: tuple[str, ...] = ("train", "validation", "test")
 
@@ -119,3 +127,183 @@ def split(
         )
         out[name] = sub
     return out
+
+
+@dataclass(frozen=True)
+class BlockFolds:
+    """Trajectories dealt to spatial folds by the square blocks they lie in (see :func:`block_folds`).
+
+    Attributes
+    ----------
+    bounds : (x0, y0, x1, y1)
+        The area cut into blocks, metres.
+    block : float
+        Block side, metres (the last row and column are cut short where the area is not a
+        multiple of it).
+    block_fold : (n_y, n_x) int64
+        Fold of each block; row ``j`` covers ``y0 + j * block`` onwards, column ``i`` likewise in x.
+    fold : (n,) int64
+        Each trajectory's fold: that of the block holding its middle sample (index ``L // 2``).
+    touches : (n, k) bool
+        Whether any sample or segment of each trajectory meets fold ``f``'s blocks (closed squares).
+    """
+
+    bounds: Region
+    block: float
+    block_fold: np.ndarray
+    fold: np.ndarray
+    touches: np.ndarray
+
+    @property
+    def n_folds(self) -> int:
+        return int(self.touches.shape[1])
+
+    @property
+    def inside(self) -> np.ndarray:
+        """(n,) bool: the trajectory meets no block but its own fold's (it crosses no fold border)."""
+        return self.touches.sum(axis=1) == 1
+
+    def test(self, fold: int, strict: bool = False) -> np.ndarray:
+        """Indices of fold ``fold``'s test trajectories: those assigned to it (every trajectory is in
+        exactly one fold's), or with ``strict`` only those of them wholly inside its blocks."""
+        keep = self.fold == self._check(fold)
+        return np.flatnonzero(keep & self.inside if strict else keep)
+
+    def train(self, fold: int) -> np.ndarray:
+        """Indices of the trajectories that may train a model tested on fold ``fold``: those that
+        never touch its blocks (no test trajectory of the fold is among them)."""
+        return np.flatnonzero(~self.touches[:, self._check(fold)])
+
+    def blocks(self, fold: int) -> list[Region]:
+        """The rectangles ``(x0, y0, x1, y1)`` of fold ``fold``'s blocks, metres."""
+        js, is_ = np.nonzero(self.block_fold == self._check(fold))
+        return [_block_box(self.bounds, self.block, i, j) for j, i in zip(js, is_, strict=True)]
+
+    def fold_at(self, xy: np.ndarray) -> np.ndarray:
+        """Fold of the block holding each point of ``xy (..., 2)`` metres -> ``(...)`` int64 (blocks
+        are half-open ``[x0, x0 + block)``, the last row and column closed; points outside the area
+        count in the nearest block)."""
+        return _fold_at(np.asarray(xy, dtype=np.float64), self.bounds, self.block, self.block_fold)
+
+    def _check(self, fold: int) -> int:
+        if not 0 <= int(fold) < self.n_folds or int(fold) != fold:
+            raise TrajectoryError(f"fold must be an integer in 0..{self.n_folds - 1}, got {fold!r}")
+        return int(fold)
+
+
+def check_blocks(block: float, folds: int, bounds: Region) -> tuple[int, int]:
+    """Validate a block side and fold count for ``bounds``; the number of block columns and rows."""
+    x0, y0, x1, y1 = check_region(bounds)
+    try:
+        block = float(block)
+    except (TypeError, ValueError):
+        raise TrajectoryError(f"block side must be a number of metres, got {block!r}") from None
+    if not (math.isfinite(block) and block > 0):
+        raise TrajectoryError(f"block side must be a finite number of metres > 0, got {block!r}")
+    nx, ny = (max(1, math.ceil((hi - lo) / block - 1e-9)) for lo, hi in ((x0, x1), (y0, y1)))
+    if isinstance(folds, bool) or int(folds) != folds or not 2 <= folds <= nx * ny:
+        raise TrajectoryError(
+            f"folds must be an integer from 2 to the number of blocks ({nx} x {ny} = {nx * ny} of "
+            f"{block:g} m), got {folds!r}"
+        )
+    return nx, ny
+
+
+def latin_folds(nx: int, ny: int, folds: int) -> np.ndarray:
+    """Folds of an ``nx x ny`` array of blocks: block (i, j) goes to ``(i + s j) mod k``, so blocks
+    that share an edge are in different folds and each row deals its blocks round the folds in
+    turn (for 4 folds of 4 x 4 blocks: one of the four central blocks each). ``s = k // 2``, or
+    the smallest ``s`` in 1..k-1 for which no fold is left without a block.
+
+    Returns
+    -------
+    (ny, nx) int64
+    """
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny))
+    for s in dict.fromkeys([max(folds // 2, 1), *range(1, folds)]):
+        table = (i + s * j) % folds
+        if len(np.unique(table)) == folds:
+            return table
+    raise TrajectoryError(
+        f"cannot deal {nx} x {ny} blocks to {folds} folds; use smaller blocks or fewer folds"
+    )
+
+
+def block_folds(
+    trajectories: Trajectories | np.ndarray,
+    block: float = 100.0,
+    folds: int = 4,
+    bounds: Region | None = None,
+) -> BlockFolds:
+    """Spatial block cross-validation folds: every trajectory dealt to one fold by where it lies.
+
+    The area is cut into squares of side ``block`` from its lower-left corner, dealt to the folds
+    by :func:`latin_folds`. Rule for a trajectory that crosses a fold border: it is *tested* in the
+    fold of the block holding its middle sample (so every trajectory is tested exactly once, and
+    the folds together keep the whole area's mix of streets and users), and it *trains* only the
+    models of folds whose blocks it never touches (no sample and no segment meets them, blocks
+    taken closed). So no model is trained on a trajectory that enters the blocks it is tested
+    on; :meth:`BlockFolds.test` with ``strict=True`` keeps only the trajectories wholly inside
+    their fold's blocks, a stricter test that under-represents fast users (they cross borders
+    more often).
+
+    Parameters
+    ----------
+    trajectories : Trajectories or (n, L, 2) float array, metres
+    block : float
+        Block side, metres (default 100).
+    folds : int
+        Number of folds k, 2 .. number of blocks (default 4).
+    bounds : (x0, y0, x1, y1), optional
+        The area, metres; default the trajectories' ``attrs["bounds"]`` (``[[x0, y0], [x1, y1]]``,
+        as generation stores it). Positions outside it are moved onto its edge first.
+
+    Returns
+    -------
+    BlockFolds
+        Deterministic: no random draw is involved.
+    """
+    positions = trajectories.positions if isinstance(trajectories, Trajectories) else trajectories
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 1:
+        raise TrajectoryError(f"positions must have shape (n, L, 2) with L >= 1, got {p.shape}")
+    if bounds is None:
+        stored = trajectories.attrs.get("bounds") if isinstance(trajectories, Trajectories) else None
+        if stored is None:
+            raise TrajectoryError("block folds need the area's bounds (X0, Y0, X1, Y1)")
+        bounds = (*stored[0], *stored[1])
+    bounds = check_region(bounds)
+    nx, ny = check_blocks(block, folds, bounds)
+    block = float(block)
+    table = latin_folds(nx, ny, int(folds))
+    x0, y0, x1, y1 = bounds
+    p = np.stack([np.clip(p[..., 0], x0, x1), np.clip(p[..., 1], y0, y1)], axis=-1)
+    n, length = p.shape[:2]
+    touches = np.zeros((n, int(folds)), dtype=bool)
+    if n:
+        a, b = (p, p) if length == 1 else (p[:, :-1], p[:, 1:])
+        lines = shapely.linestrings(np.stack([a.reshape(-1, 2), b.reshape(-1, 2)], axis=1))
+        for f in range(int(folds)):
+            cells = zip(*np.nonzero(table == f), strict=True)
+            area = shapely.union_all([shapely.box(*_block_box(bounds, block, i, j)) for j, i in cells])
+            shapely.prepare(area)
+            touches[:, f] = shapely.intersects(lines, area).reshape(n, -1).any(axis=1)
+    fold = _fold_at(p[:, length // 2], bounds, block, table)
+    return BlockFolds(bounds, block, table, fold, touches)
+
+
+def _block_box(bounds: Region, block: float, i: int, j: int) -> Region:
+    x0, y0, x1, y1 = bounds
+    return (
+        x0 + i * block,
+        y0 + j * block,
+        min(x0 + (i + 1) * block, x1),
+        min(y0 + (j + 1) * block, y1),
+    )
+
+
+def _fold_at(xy: np.ndarray, bounds: Region, block: float, table: np.ndarray) -> np.ndarray:
+    ny, nx = table.shape
+    i = np.clip(np.floor((xy[..., 0] - bounds[0]) / block), 0, nx - 1).astype(np.int64)
+    j = np.clip(np.floor((xy[..., 1] - bounds[1]) / block), 0, ny - 1).astype(np.int64)
+    return table[j, i]

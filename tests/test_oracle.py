@@ -166,6 +166,9 @@ def test_bad_input_raises_estimation_error(world):
     with pytest.raises(EstimationError, match="grid"):
         oracle.track(torch.zeros(1, 3, 8, 12), wrong, [3])
     assert "oracle" in CLASSICAL_NAMES and isinstance(method("oracle"), OracleMethod)
+    relabelled = OracleMethod(oracle)
+    relabelled.name = "oracle x2"  # e.g. another particle count beside the default one
+    assert relabelled.for_sigma(6.0, te).name == "oracle x2"
 
 
 def test_cli_refuses_the_oracle_on_a_toy_data_set(tmp_path, capsys):

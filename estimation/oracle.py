@@ -82,6 +82,7 @@ class _Grid:
             )
         self.grid, self.valid, self.spacing = grid, valid, float(grid.spacing)
         flat = np.flatnonzero(valid)
+        self.flat = flat
         self.row_of_flat = np.full(grid.size, -1, dtype=np.int64)
         self.row_of_flat[flat] = np.arange(len(flat))
         nx = grid.shape[0]
@@ -326,20 +327,34 @@ class _FreeMotion:
         at the point the step would reach in its middle (a mixture with the uniform, to keep the
         weights bounded), then a heading uniformly within the sector.
         """
-        K = _RING
+        K, g = _RING, self.space.grid.grid
+        nx, ny = int(g.shape[0]), int(g.shape[1])
+        # Each trajectory's likelihood relative to its best cell as an image of the whole grid (0 off
+        # the valid points): one gather per ring point. A proposal needs no exactness, so the ring
+        # is computed in float32 grid units.
+        img = np.zeros((len(lik), g.size), dtype=np.float32)
+        img[:, self.space.grid.flat] = np.exp(lik - lik.max(axis=1, keepdims=True))
         mid = 2.0 * np.pi * (np.arange(K) + 0.5) / K
-        ring = pos[:, None] + step[:, None, None] * np.stack([np.cos(mid), np.sin(mid)], axis=-1)
-        rows = self.space.grid.rows(ring)
-        # Likelihoods relative to each trajectory's best cell (exp once per cell, not per ring point).
-        rel = np.exp(lik - lik.max(axis=1, keepdims=True))
-        p = np.where(rows >= 0, rel.ravel()[owner[:, None] * lik.shape[1] + np.maximum(rows, 0)], 0.0)
+        inv = 1.0 / float(g.spacing)
+        reach = (step * inv).astype(np.float32)[:, None]
+        fx = ((pos[:, 0] - g.origin[0]) * inv + 0.5).astype(np.float32)[:, None] + reach * np.cos(mid).astype(
+            np.float32
+        )
+        fy = ((pos[:, 1] - g.origin[1]) * inv + 0.5).astype(np.float32)[:, None] + reach * np.sin(mid).astype(
+            np.float32
+        )
+        itype = np.int32 if img.size < 2**31 else np.int64
+        flat = np.clip(fx, 0, nx - 1).astype(itype) + nx * np.clip(fy, 0, ny - 1).astype(itype)
+        p = img.ravel()[flat + (owner.astype(itype) * g.size)[:, None]]
         total = p.sum(axis=1, keepdims=True)
-        p = np.where(total > 0, p / np.maximum(total, 1e-300), 1.0 / K)  # nothing likely: uniform
-        q = (1.0 - _RING_MIX) / K + _RING_MIX * p
+        p = np.where(total > 0, p / np.maximum(total, 1e-30), np.float32(1.0 / K))  # nothing likely: uniform
+        q = np.float32((1.0 - _RING_MIX) / K) + np.float32(_RING_MIX) * p
         c = np.cumsum(q, axis=1)
-        k = np.minimum((c < rng.random(len(q))[:, None] * c[:, -1:]).sum(axis=1), K - 1)
+        k = np.minimum((c < rng.random(len(q), dtype=np.float32)[:, None] * c[:, -1:]).sum(axis=1), K - 1)
         heading = (k + rng.random(len(k))) * (2.0 * np.pi / K)
-        return heading, -np.log(K * q[np.arange(len(k)), k])
+        # The weight uses q normalised in float64 (its float32 sum is 1 within 1e-6).
+        qk = q[np.arange(len(k)), k].astype(np.float64) / c[:, -1].astype(np.float64)
+        return heading, -np.log(K * qk)
 
     def step(
         self, s: _State, rng: np.random.Generator, lik: np.ndarray, n: int

@@ -322,13 +322,15 @@ def _describe(s: dict[str, Any]) -> str:
 # -------------------------------------------------------------------------------------- evaluation
 
 
-def _classical(name: str, task: str, t_obs: int, horizon: int, seed: int):
-    """The classical method ``name`` for ``task``, or None (with the reason) when it does not exist
-    or does not do that task."""
+def _classical(name: str, task: str, t_obs: int, horizon: int, seed: int, dataset: str):
+    """The classical method ``name`` for ``task``, or None (with the reason) when it does not exist,
+    does not do that task, or (the oracle) cannot know the data set's generator."""
     from estimation import method
 
     try:
         m = method(name, task=task, t_obs=t_obs, horizon=horizon, fit_length=7, seed=seed)
+        if getattr(m, "task", task) == task and hasattr(m, "use_dataset"):
+            m.use_dataset(dataset)
     except Exception as e:  # a method still being written, or refusing its options: leave it out
         return None, " ".join(str(e).split())[:160] or type(e).__name__
     if getattr(m, "task", task) != task:
@@ -384,7 +386,7 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
             if kind == "run":
                 m = method(what)
             else:
-                m, why = _classical(what, task, t_obs, horizon, args.seed)
+                m, why = _classical(what, task, t_obs, horizon, args.seed, args.dataset)
                 if m is None:
                     log(f"{head}: left out ({why})")
                     skipped.append(f"{key}: {why}")

@@ -919,11 +919,8 @@ class OracleMethod:
         if validation is None:
             raise EstimationError("oracle needs the data set's grid (pass validation trajectories)")
         m = OracleMethod(None, self.n_particles, self.seed, self.eps)
-        m.name, m.source, m.oracle = (
-            self.name,
-            self.source,
-            self.oracle,
-        )  # a relabelled oracle keeps its label
+        # A relabelled oracle (another particle count beside the default) keeps its label.
+        m.name, m.source, m.oracle = self.name, self.source, self.oracle
         m.matcher = FingerprintMatcher(
             validation.grid_pdp, validation.grid_xy, sigma, validation.threshold, eps=self.eps
         )

@@ -54,7 +54,14 @@ _EXPORTS = {
         "record_estimates",
         "write_report",
     ),
-    ".smoothing": ("MixtureMotion", "MotionTable", "extrapolate", "kalman_forecast", "rts_smoother"),
+    ".smoothing": (
+        "CandidateFilter",
+        "MixtureMotion",
+        "MotionTable",
+        "extrapolate",
+        "kalman_forecast",
+        "rts_smoother",
+    ),
     ".training": ("log_training", "read_run_info", "train"),
 }
 

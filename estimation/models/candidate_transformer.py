@@ -9,8 +9,9 @@ motion. Each step's estimate is a convex combination of that step's candidates, 
 sees relative geometry and likelihoods: it is translation invariant and does not depend on where
 the training trajectories ran.
 
-Its features are the hidden-Markov posteriors of :mod:`estimation.smoothing.hmm` (random walk,
-then constant velocity over the pruned candidates), with motion statistics
+Its features are the hidden-Markov posteriors (random walk, then constant velocity over the pruned
+candidates) as the online candidate filter gives them
+(:class:`~estimation.smoothing.online.CandidateFilter`, :meth:`Estimator.inputs`), with motion statistics
 (:class:`~estimation.smoothing.motion.MotionTable`) measured on the training trajectories and saved
 with the network. The sub-cell smoother's estimate (:func:`~estimation.smoothing.hmm.subcell_mean`)
 is the network's starting point; the network moves it toward its own weighting of the candidates
@@ -107,9 +108,10 @@ class CandidateTransformer(nn.Module):
         return self
 
     def smoothed(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
-        """The classical estimate ``(B, T, 2)`` metres the network starts from: the sub-cell
-        smoother's (:func:`subcell_mean`) once the motion tables are measured, else the cell-level
-        constant-velocity posterior mean (``match-cv``)."""
+        """The classical estimate ``(B, T, 2)`` metres when features come without it (the online
+        filter gives its own, :meth:`Estimator.inputs`): the dense sub-cell smoother's
+        (:func:`subcell_mean`) once the motion tables are measured, else the cell-level
+        constant-velocity posterior mean."""
         if not bool(self.motion_fine.fitted):
             return cell_mean(xy, post)
         return subcell_mean(xy, post[..., 0], post[..., -1], self.motion_fine, float(self.grid_step))

@@ -5,8 +5,10 @@ from .forecast import extrapolate
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
 from .kalman import kalman_forecast, rts_smoother
 from .motion import MixtureMotion, MotionTable, snap_to_lattice
+from .online import CandidateFilter
 
 __all__ = [
+    "CandidateFilter",
     "MixtureMotion",
     "MotionTable",
     "candidate_features",

@@ -11,8 +11,10 @@ with their log likelihoods. Three smoothers turn them into posteriors given all 
   tells the grid cell, but a user moving steadily crosses cells in a pattern that tells where in
   them it is.
 
-:func:`candidate_features` chains the first two (what ``match-cv`` and ``tn-match`` read);
-the motion densities come from :mod:`estimation.smoothing.motion`.
+:func:`candidate_features` chains the first two. These dense smoothers re-run on a whole
+sequence; ``match-cv`` and ``tn-match`` read the same posteriors from the online filter of
+:mod:`estimation.smoothing.online`, which equals them when its beam keeps every pair (the tests
+check it against these). The motion densities come from :mod:`estimation.smoothing.motion`.
 """
 
 from __future__ import annotations

@@ -46,3 +46,24 @@ def test_draws(data, n_max: int, sigma: float, length: int | None = None):
         data = data.crop(0, min(length, data.length))
     data = data.subset(np.sort(np.random.default_rng(0).permutation(data.n)[:n_max]))
     return data, noisy_bits(data, sigma, torch.Generator().manual_seed(1))
+
+
+RECIPE_MINUTES = 30.0
+"""The wall-clock budget a model's own epoch count (its cosine schedule's horizon) is sized for."""
+
+
+def budget_settings(model: str, minutes: float, cap: int | None = None, task: str = "tracking") -> dict:
+    """TrainConfig settings that fit a model's own recipe into a budget of ``minutes``.
+
+    A recipe with a cosine schedule decays to zero by its last epoch, so a shorter budget must
+    shorten it: its ``epochs`` are scaled by ``minutes / 30`` (the recipe is sized for 30 minutes
+    on 2 cores), and its warm-up keeps its share of them; ``cap`` bounds the epochs. Models on the
+    plateau schedule get ``epochs = cap`` (the budget and early stopping end them).
+    """
+    from estimation.models import model_spec
+
+    recipe = model_spec(model).recipe
+    if recipe.get("schedule") != "cosine":
+        return {} if cap is None else {"epochs": cap}
+    epochs = max(2, round(recipe["epochs"] * minutes / RECIPE_MINUTES))
+    return {"epochs": epochs if cap is None else min(epochs, cap)}

@@ -1,7 +1,8 @@
 """The paper's comparison under one protocol: train every model, evaluate all, write the table.
 
     python benchmarks/paper_table.py DATA.zarr --out DIR [--budget-minutes 30] [--models lstm tn ...]
-        [--tasks tracking forecasting] [--noises 6 9] [--max-trajectories N] [--epoch-size 2048]
+        [--tasks tracking forecasting] [--noises 6 9] [--max-trajectories N] [--max-test N]
+        [--epoch-size 2048]
 
 Every model (LSTM, GRU, RNN, TCN, Conv1D, tn, tn-match) is trained for each task under one
 protocol: the same training and validation trajectories, the same epoch size, early stopping on the
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import budget_settings
 
 MODELS = ("lstm", "gru", "rnn", "tcn", "conv1d", "tn", "tn-match")
 TASKS = ("tracking", "forecasting")
@@ -71,6 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="at most N trajectories per split (train, validation, test; a seeded subset; default all)",
     )
     ap.add_argument(
+        "--max-test",
+        type=int,
+        default=0,
+        help="at most N trajectories per test split (a seeded subset; default all): the classical "
+        "trackers and the oracle cost seconds per trajectory",
+    )
+    ap.add_argument(
         "--epoch-size", type=int, default=2048, help="trajectories per epoch, fresh each epoch (default 2048)"
     )
     ap.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
@@ -107,8 +116,8 @@ def _check(args) -> None:
         raise _Usage(f"--tasks: unknown {' '.join(bad)} (choose from {' '.join(TASKS)})")
     if not all(math.isfinite(n) and n >= 0 for n in args.noises):
         raise _Usage(f"--noises must be finite and >= 0 dB, got {' '.join(f'{n:g}' for n in args.noises)}")
-    if args.max_trajectories < 0 or args.epoch_size < 0:
-        raise _Usage("--max-trajectories and --epoch-size must be >= 0")
+    if args.max_trajectories < 0 or args.max_test < 0 or args.epoch_size < 0:
+        raise _Usage("--max-trajectories, --max-test and --epoch-size must be >= 0")
     if args.patience < 1 or args.max_epochs < 1 or args.threads < 1:
         raise _Usage("--patience, --max-epochs and --threads must be >= 1")
     if not (math.isfinite(args.sigma) and args.sigma >= 0):
@@ -179,10 +188,12 @@ def _main(args) -> int:
     t_start = time.perf_counter()
     sets, info = load_sets(args.dataset, ("train", "validation", *SPLITS))
     sets = {k: _subset(v, args.max_trajectories, args.seed + i) for i, (k, v) in enumerate(sets.items())}
+    sets = {k: _subset(v, args.max_test, args.seed + 100) if k in SPLITS else v for k, v in sets.items()}
     protocol = {
         "dataset": info.get("dataset", str(args.dataset)),
         "content_hash": info.get("content_hash", ""),
         "max_trajectories": args.max_trajectories,
+        "max_test": args.max_test,
         "n_train": sets["train"].n,
         "n_validation": sets["validation"].n,
         "epoch_size": min(args.epoch_size, sets["train"].n) if args.epoch_size else sets["train"].n,
@@ -248,7 +259,7 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
                 model=model,
                 task=task,
                 sigma=args.sigma,
-                epochs=args.max_epochs,
+                **budget_settings(model, args.budget_minutes, cap=args.max_epochs, task=task),
                 patience=args.patience,
                 epoch_size=protocol["epoch_size"],
                 seed=args.seed,
@@ -451,8 +462,9 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
         + f". Every model was trained on the same {protocol['n_train']} training trajectories "
         f"(epochs of {protocol['epoch_size']} drawn afresh, fingerprints with fresh {protocol['sigma']:g} dB "
         f"noise) with early stopping on the loss over the same {protocol['n_validation']} validation "
-        f"trajectories (patience {protocol['patience']} epochs, at most {protocol['max_epochs']} epochs) and "
-        f"a wall-clock budget of {budget} per model: no epoch starts after it. The weights of the best "
+        f"trajectories (patience {protocol['patience']} epochs, at most {protocol['max_epochs']} epochs; a model "
+        "whose recipe decays its learning rate to zero by a set epoch, `tn`, has that schedule shortened to "
+        f"fit the budget) and a wall-clock budget of {budget} per model: no epoch starts after it. The weights of the best "
         "validation epoch are evaluated. All methods see the same noisy fingerprints per split and noise "
         "level. Mean per-trajectory RMSE (m); *seen*: test trajectories outside the spatial hold-out "
         "region, *held-out*: those touching it.\n",

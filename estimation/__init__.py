@@ -1,7 +1,9 @@
 """Trajectory estimation from beamformed-fingerprint sequences (torch lives only here).
 
 Tasks: tracking (positions y_1..y_T from fingerprints X_1..X_T) and forecasting (from X_1..X_Tobs,
-positions y_Tobs+1..y_L). Models: the transformer encoder-decoder of the paper (``tn``), LSTM, GRU,
+positions y_Tobs+1..y_L). Models: the transformer of the paper (``tn``, by default in the
+configuration measured best on our data: a wide embedding of the set bits, a cell head, a warm-up
+on single fingerprints; :data:`PAPER_OPTIONS` gives the paper's), LSTM, GRU,
 plain RNN, TCN and Conv1D baselines (the registry :data:`MODELS`), the classical trackers
 ``knn-kalman`` (nearest fingerprint + Kalman smoother) and ``match-cv`` (match candidates +
 hidden-Markov smoother), and ours: ``tn-match``, a transformer over the grid's most likely points of
@@ -43,7 +45,15 @@ _EXPORTS = {
     ),
     ".matching": ("FingerprintMatcher",),
     ".metrics": ("summarise", "summarise_by_kind", "trajectory_rmse"),
-    ".models": ("MODELS", "ModelSpec", "build_network", "count_parameters", "model_spec"),
+    ".models": (
+        "MODELS",
+        "PAPER_OPTIONS",
+        "CellHead",
+        "ModelSpec",
+        "build_network",
+        "count_parameters",
+        "model_spec",
+    ),
     ".names": ("CLASSICAL_NAMES", "MODEL_NAMES"),
     ".noise": ("noisy_bits",),
     ".report": (

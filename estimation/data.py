@@ -214,6 +214,26 @@ class BatchSampler:
             rows = order[k : k + self.batch_size]
             yield self.make(rows, g)
 
+    def singles(self, epoch: int, batch_size: int):
+        """Yield the batches of single fingerprints of ``epoch`` (tracking, one step each): every step
+        of the epoch's trajectories on its own, shuffled across trajectories, ``batch_size`` a batch;
+        ``bits (B, 1, M, N_s)``, ``y (B, 1, 2)`` and ``rows`` the trajectory of each."""
+        if self.task != "tracking":
+            raise EstimationError("single fingerprints are for tracking")
+        g = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
+        d, n = self.data, self.data.n
+        order = torch.randperm(n, generator=g).numpy() if self.shuffle else np.arange(n)
+        order = order[: self.per_epoch]
+        flat = (order[:, None] * d.length + np.arange(d.length)[None, :]).ravel()
+        flat = flat[torch.randperm(len(flat), generator=g).numpy()] if self.shuffle else flat
+        for k in range(0, len(flat), batch_size):
+            rows, steps = np.divmod(flat[k : k + batch_size], d.length)
+            bits = fingerprint_bits(
+                d.grid_pdp[torch.from_numpy(d.index[rows, steps])], self.sigma, d.threshold, g
+            )
+            y = torch.from_numpy(np.ascontiguousarray(d.positions[rows, steps])).float()
+            yield Batch(bits[:, None], y[:, None], rows)
+
     def make(self, rows: np.ndarray, g: torch.Generator) -> Batch:
         """One batch of trajectories ``rows`` with crops and noise drawn from ``g``."""
         d, L = self.data, self.data.length

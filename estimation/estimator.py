@@ -19,8 +19,8 @@ from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
 from .data import Normaliser, SequenceSet
 from .errors import EstimationError
 from .matching import FingerprintMatcher
-from .models import ModelSpec, build_network, count_parameters, model_spec
-from .names import LOSSES, TASKS, Loss, ModelName, Task
+from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
+from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .smoothing.motion import MixtureMotion
 from .smoothing.online import CandidateFilter
 
@@ -40,8 +40,21 @@ _WHOLE = (
     "horizon",
     "seed",
     "epoch_size",
+    "warmup_epochs",
 )
-_REAL = ("sigma", "lr", "dropout", "min_delta", "lr_factor")
+_REAL = ("sigma", "lr", "warmup_lr", "dropout", "min_delta", "lr_factor")
+
+RECIPE_DEFAULTS: dict[str, Any] = {
+    "epochs": 100,
+    "lr": 1e-3,
+    "schedule": "plateau",
+    "warmup_epochs": 0,
+    "warmup_lr": 3e-3,
+    "min_delta": 1e-3,
+    "loss": "mse",
+}
+"""The settings a :class:`TrainConfig` leaves unset take the model's own
+(:attr:`~estimation.models.ModelSpec.recipe`), else these: the paper's."""
 
 
 @dataclass(frozen=True)
@@ -53,29 +66,43 @@ class TrainConfig:
     model : one of :data:`estimation.names.MODEL_NAMES` (``tn tn-match lstm gru rnn tcn conv1d``)
     task : ``tracking`` or ``forecasting``
     sigma : float, dB; noise of the training fingerprints
-    epochs, batch_size, lr, dropout : the paper's optimisation settings
+    epochs, batch_size, lr, dropout : the paper's optimisation settings (``epochs`` and ``lr``
+        unset: the model's own, see :data:`RECIPE_DEFAULTS`)
+    schedule : ``plateau`` (the paper's: the learning rate falls by ``lr_factor`` after
+        ``lr_patience`` epochs without improvement) or ``cosine`` (each phase, the warm-up and the
+        sequences, falls from its rate to zero along half a cosine by its last epoch); unset: the
+        model's own
     patience : epochs without validation improvement before early stopping
     min_delta : relative fall of the validation loss that counts as an improvement for early stopping
+        (unset: the model's own, 0 for ``tn``, whose cosine schedule makes the loss fall slowly to
+        the end, else 1e-3)
     lr_patience, lr_factor : ReduceLROnPlateau settings
     min_length, max_length : tracking crops of T steps, T uniform in this range (max 0 = trajectory length)
     t_obs, horizon : forecasting: observed steps and predicted steps
     seed : int
     epoch_size : trajectories drawn (afresh, with fresh noise) per epoch; 0 = all of them
-    loss : ``mse`` (the paper's, over all coordinates) or ``rmse`` (mean per-trajectory RMSE, the
-        evaluation metric, which weighs a lost track less than squared errors do); empty picks the
-        model's own (:attr:`ModelSpec.loss`: ``rmse`` for ``tn-match``, ``mse`` for the others)
+    loss : ``mse`` (the paper's, over all coordinates), ``rmse`` (mean per-trajectory RMSE, the
+        evaluation metric, which weighs a lost track less than squared errors do) or ``cells`` (a
+        cell head's cross-entropy plus squared error, see :class:`~estimation.models.CellHead`); unset:
+        the model's own (``cells`` for ``tn``, ``rmse`` for ``tn-match``, ``mse`` for the others)
+    warmup_epochs : tracking: epochs of single fingerprints before the sequences: every step of the
+        epoch's trajectories on its own, shuffled, in batches of ``4 * batch_size`` at learning rate
+        ``warmup_lr`` (unset: 3e-3); they teach the fingerprint embedding far faster than sequences, whose
+        steps crowd one place. They count towards ``epochs``; early stopping and the plateau
+        schedule wait for the sequences. Unset: the model's own (24 for ``tn``, 0 for the others),
+        in proportion when ``epochs`` is set (``tn``: 24 of its 200)
     options : extra constructor arguments of the network (e.g. ``{"d": 64}``)
     """
 
     model: ModelName
     task: Task = "tracking"
     sigma: float = SIGMA_DB
-    epochs: int = 100
+    epochs: int | None = None
     batch_size: int = 64
-    lr: float = 1e-3
+    lr: float | None = None
     dropout: float = 0.01
     patience: int = 8
-    min_delta: float = 1e-3
+    min_delta: float | None = None
     lr_patience: int = 3
     lr_factor: float = 0.5
     min_length: int = 2
@@ -84,10 +111,25 @@ class TrainConfig:
     horizon: int = 2
     seed: int = 0
     epoch_size: int = 0
-    loss: Loss | Literal[""] = ""
+    warmup_epochs: int | None = None
+    warmup_lr: float | None = None
+    schedule: Schedule | None = None
+    loss: Loss | Literal[""] | None = None
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        spec = model_spec(self.model)
+        own_epochs = self.epochs is None
+        for name, default in RECIPE_DEFAULTS.items():
+            current = getattr(self, name)
+            if current is None or current == "":
+                value = spec.recipe.get(name, default)
+                if name == "warmup_epochs" and self.task != "tracking":
+                    value = 0
+                elif name == "warmup_epochs" and not own_epochs and isinstance(self.epochs, int):
+                    # the recipe's warm-up keeps its share of a number of epochs set by hand
+                    value = round(value * self.epochs / spec.recipe.get("epochs", self.epochs))
+                object.__setattr__(self, name, value)
         for name in _WHOLE:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int):
@@ -101,7 +143,6 @@ class TrainConfig:
                 raise EstimationError(f"{name} must not be negative (got {getattr(self, name)})")
         if not 0 < self.lr_factor < 1:
             raise EstimationError(f"lr_factor must be in (0, 1) (got {self.lr_factor})")
-        spec = model_spec(self.model)
         if self.task not in TASKS:
             raise EstimationError(f"unknown task {self.task!r} ({', '.join(TASKS)})")
         for name in ("epochs", "batch_size", "patience", "min_length", "t_obs", "horizon"):
@@ -109,13 +150,22 @@ class TrainConfig:
                 raise EstimationError(f"{name} must be at least 1 (got {getattr(self, name)})")
         if self.task not in spec.tasks:
             raise EstimationError(f"{self.model} is trained for {', '.join(spec.tasks)} only")
-        if not self.loss:
-            object.__setattr__(self, "loss", spec.loss)
+        if self.schedule not in SCHEDULES:
+            raise EstimationError(f"unknown schedule {self.schedule!r} (choose from {', '.join(SCHEDULES)})")
+        if not 0 <= self.warmup_epochs < self.epochs:
+            raise EstimationError(
+                f"warmup_epochs must be in 0..epochs-1 (got {self.warmup_epochs} of {self.epochs})"
+            )
+        if self.warmup_epochs and (spec.reads_grid or self.task != "tracking"):
+            raise EstimationError(
+                f"warm-up epochs train on single fingerprints: for tracking with a network that reads "
+                f"the bits (not {self.model} {self.task})"
+            )
         if self.loss not in LOSSES:
             raise EstimationError(f"unknown loss {self.loss!r} (choose from {', '.join(LOSSES)})")
         if not 0 <= self.min_delta < 1:
             raise EstimationError(f"min_delta must be in [0, 1) (got {self.min_delta})")
-        if self.sigma < 0 or self.lr <= 0 or not 0 <= self.dropout < 1:
+        if self.sigma < 0 or self.lr <= 0 or self.warmup_lr <= 0 or not 0 <= self.dropout < 1:
             raise EstimationError(f"bad sigma/lr/dropout ({self.sigma}, {self.lr}, {self.dropout})")
 
     def to_json(self) -> str:
@@ -158,6 +208,8 @@ class Estimator(nn.Module):
             dropout=config.dropout,
             **config.options,
         )
+        if config.loss == "cells" and not isinstance(getattr(self.net, "head", None), CellHead):
+            raise EstimationError(f"loss 'cells' needs a cell head ({config.model} with head=cells)")
 
     @property
     def name(self) -> str:
@@ -243,19 +295,26 @@ class Estimator(nn.Module):
         fingerprint and returns the users' current positions in constant time per step."""
         return OnlineTracker(self)
 
-    def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor:
-        """Normalised output ``(B, T_out, 2)`` for bits or :meth:`inputs`; ``y`` (metres) enables
-        teacher forcing where used."""
+    def forward(self, x: Any, y: torch.Tensor | None = None) -> torch.Tensor | CellOutput:
+        """Normalised output ``(B, T_out, 2)`` for bits or :meth:`inputs` (a network with a cell
+        head gives a :class:`~estimation.models.CellOutput` of those and their scores, for
+        :meth:`loss`); ``y`` (metres) enables teacher forcing where used."""
         if self.uses_grid:
             xy, post, fine = self.inputs(x) if isinstance(x, torch.Tensor) else x
             return self.normaliser.to_unit(self.net(xy, post, fine))
         return self.net(x, None if y is None else self.normaliser.to_unit(y))
 
-    def loss(self, out: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, int]:
+    def loss(self, out: torch.Tensor | CellOutput, y: torch.Tensor) -> tuple[torch.Tensor, int]:
         """The training loss of normalised output ``out (B, T, 2)`` against ``y (B, T, 2)`` metres,
         as its sum over the batch and the number of terms summed (coordinates for ``mse``,
-        trajectories for ``rmse``), so that batches of any size average exactly."""
-        d = out - self.normaliser.to_unit(y)
+        trajectories for ``rmse``, steps for ``cells``), so that batches of any size average
+        exactly."""
+        target = self.normaliser.to_unit(y)
+        if isinstance(out, CellOutput):
+            if self.config.loss == "cells":
+                return self.net.loss(out, target)
+            out = out.position
+        d = out - target
         if self.config.loss == "rmse":
             per = (d.square().sum(-1).mean(-1) + 1e-12).sqrt()  # the floor keeps the gradient finite
             return per.sum(), per.numel()
@@ -268,7 +327,7 @@ class Estimator(nn.Module):
         was = self.training
         self.eval()
         try:
-            return self.normaliser.to_metres(self(x))
+            return self.normaliser.to_metres(positions(self(x)))
         finally:
             self.train(was)
 

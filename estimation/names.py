@@ -10,6 +10,8 @@ __all__ = [
     "LOSSES",
     "Loss",
     "MODEL_NAMES",
+    "SCHEDULES",
+    "Schedule",
     "ModelName",
     "TASKS",
     "Task",
@@ -19,9 +21,15 @@ Task = Literal["tracking", "forecasting"]
 """Tracking: positions of every observed step. Forecasting: the steps after the observed ones."""
 TASKS: tuple[Task, ...] = get_args(Task)
 
-Loss = Literal["mse", "rmse"]
-"""``mse``: the paper's, over all coordinates; ``rmse``: the mean per-trajectory RMSE."""
+Loss = Literal["mse", "rmse", "cells"]
+"""``mse``: the paper's, over all coordinates; ``rmse``: the mean per-trajectory RMSE; ``cells``: a
+cell head's own (cross-entropy over the cells plus the squared error, see
+:class:`estimation.models.heads.CellHead`)."""
 LOSSES: tuple[Loss, ...] = get_args(Loss)
+
+Schedule = Literal["plateau", "cosine"]
+"""How the learning rate falls: on plateaus of the validation loss (the paper's) or along a cosine."""
+SCHEDULES: tuple[Schedule, ...] = get_args(Schedule)
 
 ModelName = Literal["tn", "tn-match", "lstm", "gru", "rnn", "tcn", "conv1d"]
 """The trainable networks (:data:`estimation.models.MODELS` holds their specifications)."""

@@ -33,6 +33,7 @@ from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
 from .data import Batch, BatchSampler, SequenceSet
 from .errors import EstimationError
 from .estimator import MODEL_FILE, Estimator, TrainConfig
+from .models import positions
 
 __all__ = ["train", "log_training", "CHECKPOINT_FILE", "RUN_FILE", "read_run_info"]
 
@@ -40,6 +41,7 @@ CHECKPOINT_FILE = "checkpoint.pt"
 RUN_FILE = "run.json"
 RECORDING_FILE = "training.rrd"
 _HISTORY_KEYS = ("train_loss", "val_loss", "val_rmse", "lr", "seconds")
+_WARMUP_BATCH = 4  # single fingerprints per warm-up batch, in units of the batch size
 
 
 def _lengths(cfg: TrainConfig, data: SequenceSet) -> tuple[int, int]:
@@ -79,7 +81,7 @@ def _validate(est: Estimator, batches: Iterable[Batch]) -> tuple[float, float]:
         total, terms = est.loss(out, b.y)
         loss_sum += float(total)
         n += terms
-        err = est.normaliser.to_metres(out) - b.y
+        err = est.normaliser.to_metres(positions(out)) - b.y
         rmse.append(err.pow(2).sum(-1).mean(-1).sqrt())
     return loss_sum / max(n, 1), float(torch.cat(rmse).mean())
 
@@ -242,7 +244,13 @@ def train(
     with locked_output(run, "run folder", create=True, keep=(run / CHECKPOINT_FILE).exists):
         if (run / CHECKPOINT_FILE).exists() and not resume:
             raise EstimationError(f"{run}: already holds a checkpoint; pass --resume or choose another --out")
-        return _run(train_set, val_set, cfg, run, resume, data_info, progress, record, log, time_limit)
+        # Tiny probabilities of far cells underflow to denormals, whose arithmetic is many times
+        # slower on CPUs; flushed to zero while training (below 1e-38 nothing here is changed by it).
+        torch.set_flush_denormal(True)
+        try:
+            return _run(train_set, val_set, cfg, run, resume, data_info, progress, record, log, time_limit)
+        finally:
+            torch.set_flush_denormal(False)
 
 
 def _run(
@@ -289,15 +297,21 @@ def _run(
             log(f"{cfg.model}: time limit reached after epoch {state.epoch}; continue with --resume")
             break
         t0 = time.perf_counter()
+        lr = _epoch_lr(cfg, state.epoch)
+        if lr is not None:
+            for group in opt.param_groups:
+                group["lr"] = lr
         train_loss = _train_epoch(est, opt, sampler, cfg, state.epoch, progress)
         val_loss, val_rmse = _validate(est, val_batches)
         lr = opt.param_groups[0]["lr"]
-        sched.step(val_loss)
+        if cfg.schedule == "plateau" and state.epoch >= cfg.warmup_epochs:  # a warm-up's plateau
+            sched.step(val_loss)  # says nothing of the sequences
         _end_epoch(
             run, cfg, est, opt, sched, state, (train_loss, val_loss, val_rmse, lr, time.perf_counter() - t0)
         )
         log(
-            f"{cfg.model} epoch {state.epoch}: train {train_loss:.5f} val {val_loss:.5f} "
+            f"{cfg.model} {'warm-up' if state.epoch <= cfg.warmup_epochs else 'epoch'} {state.epoch}: "
+            f"train {train_loss:.5f} val {val_loss:.5f} "
             f"rmse {val_rmse:.2f} m lr {lr:.1e} ({state.history['seconds'][-1]:.1f} s)"
         )
     if record and state.history["train_loss"]:
@@ -305,6 +319,15 @@ def _run(
     summary = _summary(state, est)
     _write_json(run / RUN_FILE, info | {"summary": summary})
     return summary
+
+
+def _epoch_lr(cfg: TrainConfig, epoch: int) -> float | None:
+    """The learning rate of 0-based ``epoch``, or None where the plateau scheduler sets it."""
+    warm = cfg.warmup_epochs
+    first, length, top = (0, warm, cfg.warmup_lr) if epoch < warm else (warm, cfg.epochs - warm, cfg.lr)
+    if cfg.schedule == "cosine":
+        return top * 0.5 * (1.0 + math.cos(math.pi * (epoch - first) / length))
+    return top if epoch == first else None
 
 
 @dataclass
@@ -396,27 +419,42 @@ class _Epoch0:
 def _train_epoch(
     est: Estimator, opt, sampler: BatchSampler, cfg: TrainConfig, epoch: int, progress: bool
 ) -> float:
-    """One pass over the epoch's batches; the mean training loss per trajectory."""
+    """One pass over the epoch's batches; the mean training loss per trajectory (per fingerprint in
+    a warm-up epoch)."""
     torch.manual_seed(cfg.seed * 7919 + epoch + 1)  # dropout masks of this epoch
     est.train()
-    total, count = 0.0, 0
+    warm = epoch < cfg.warmup_epochs
+    if warm:
+        size = _WARMUP_BATCH * cfg.batch_size
+        drawn, n_batches = sampler.singles(epoch, size), -(-sampler.per_epoch * sampler.data.length // size)
+    else:
+        drawn, n_batches = sampler.epoch(epoch), len(sampler)
     # The worker thread also prepares what the network reads (candidate search for tn-match).
-    batches = _prefetch(replace(b, inputs=est.inputs(b.bits)) for b in sampler.epoch(epoch))
+    batches = _prefetch(replace(b, inputs=est.inputs(b.bits)) for b in drawn)
     if progress:
         from tqdm import tqdm
 
+        what = "warm-up" if warm else "epoch"
         batches = tqdm(
-            batches, total=len(sampler), desc=f"{cfg.model} epoch {epoch + 1}", leave=False, unit="batch"
+            batches, total=n_batches, desc=f"{cfg.model} {what} {epoch + 1}", leave=False, unit="batch"
         )
-    for b in batches:
-        out = est(b.inputs, b.y)
-        total_loss, terms = est.loss(out, b.y)
-        loss = total_loss / terms
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        total += float(loss.detach()) * len(b.rows)
-        count += len(b.rows)
+    held = [p for p in getattr(est.net, "sequence_parameters", list)() if p.requires_grad] if warm else []
+    total, count = 0.0, 0
+    try:
+        for p in held:  # a warm-up teaches single fingerprints: what reads across steps waits
+            p.requires_grad_(False)
+        for b in batches:
+            out = est(b.inputs, b.y)
+            total_loss, terms = est.loss(out, b.y)
+            loss = total_loss / terms
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(b.rows)
+            count += len(b.rows)
+    finally:
+        for p in held:
+            p.requires_grad_(True)
     return total / count
 
 
@@ -433,7 +471,13 @@ def _end_epoch(
         state.best_val = val_loss
         est.save(run / MODEL_FILE, {"epoch": state.epoch, "val_loss": val_loss, "val_rmse": val_rmse})
     # Early stopping waits for a real improvement; the best model is kept whatever its margin.
-    if val_loss < state.ref_val * (1 - cfg.min_delta):
+    if state.epoch <= cfg.warmup_epochs:
+        state.ref_val, state.bad = min(state.ref_val, val_loss), 0
+    elif state.epoch == cfg.warmup_epochs + 1 and cfg.warmup_epochs:
+        # The sequence phase restarts its learning rate, so its loss first rises above the
+        # warm-up's best; patience counts from the phase's own first epoch.
+        state.ref_val, state.bad = val_loss, 0
+    elif val_loss < state.ref_val * (1 - cfg.min_delta):
         state.ref_val, state.bad = val_loss, 0
     else:
         state.bad += 1

@@ -7,6 +7,9 @@ import pytest
 import torch
 
 from estimation import MODELS, BatchSampler, Estimator, TrainConfig, build_network, count_parameters
+from estimation.models import PAPER_OPTIONS, CellHead, CellOutput
+from estimation.models import positions as _position
+from estimation.models.embedding import BagEmbedding
 from estimation.synthetic import toy_sequence_set
 
 
@@ -24,11 +27,11 @@ def test_output_shapes(name, task, t_out):
     net = build_network(name, 32, 81, task, horizon=3)
     bits = (torch.rand(5, 6, 32, 81) < 0.1).float()
     net.train()
-    assert net(bits, torch.zeros(5, t_out, 2)).shape == (5, t_out, 2)
+    assert _position(net(bits, torch.zeros(5, t_out, 2))).shape == (5, t_out, 2)
     net.eval()
-    assert net(bits).shape == (5, t_out, 2)
+    assert _position(net(bits)).shape == (5, t_out, 2)
     # any input length works (tracking outputs follow it)
-    assert net(bits[:, :2]).shape == (5, 2 if task == "tracking" else 3, 2)
+    assert _position(net(bits[:, :2])).shape == (5, 2 if task == "tracking" else 3, 2)
 
 
 @pytest.mark.parametrize("task,t_out", [("tracking", 4), ("forecasting", 2)])
@@ -37,18 +40,64 @@ def test_autoregressive_decoder_matches_teacher_forcing_on_its_own_outputs(task,
     net = build_network("tn", 4, 6, task, horizon=2, decoder="autoregressive", dropout=0.0)
     net.eval()
     bits = (torch.rand(3, 4, 4, 6) < 0.3).float()
-    y = net(bits)
+    y = _position(net(bits))
     assert y.shape == (3, t_out, 2)
     # Feeding the model's own outputs back with the causal mask in one pass gives the same result.
     net.train()
-    assert torch.allclose(net(bits, y), y, atol=1e-5)
+    assert torch.allclose(_position(net(bits, y)), y, atol=1e-5)
 
 
-def test_transformer_is_the_papers_size():
-    net = build_network("tn", 32, 81, "tracking", 1)
+def test_paper_configuration_is_the_papers_size():
+    net = build_network("tn", 32, 81, "tracking", 1, **PAPER_OPTIONS)
     assert 5e4 <= count_parameters(net) <= 2e5
-    assert len(net.transformer.encoder.layers) == 2 and len(net.transformer.decoder.layers) == 2
-    assert net.transformer.encoder.layers[0].self_attn.num_heads == 2
+    assert len(net.encoder.layers) == 2 and len(net.decoder.layers) == 2
+    assert net.encoder.layers[0].self_attn.num_heads == 2
+    assert not isinstance(net.head, CellHead)
+
+
+def test_default_transformer_starts_as_its_per_step_embedding():
+    """identity_init: the untrained stack passes each step's embedding through, so the positions of
+    a sequence are those of its steps read one by one (what the warm-up trains)."""
+    torch.manual_seed(0)
+    net = build_network("tn", 4, 6, "tracking", 1, dropout=0.0).eval()
+    bits = (torch.rand(3, 5, 4, 6) < 0.3).float()
+    one_by_one = torch.cat([_position(net(bits[:, t : t + 1])) for t in range(5)], 1)
+    assert torch.allclose(_position(net(bits)), one_by_one, atol=1e-6)
+    with torch.no_grad():  # trained attention mixes the steps
+        net.encoder.layers[0].self_attn.out_proj.weight.normal_()
+    assert not torch.allclose(_position(net(bits)), one_by_one, atol=1e-4)
+
+
+def test_bag_embedding_is_the_dense_layer_over_set_bits():
+    torch.manual_seed(0)
+    emb = BagEmbedding(4, 6, 8, hidden=16, dropout=0.0)
+    bits = (torch.rand(3, 2, 4, 6) < 0.3).float()
+    bits[0, 0] = 0  # a fingerprint with no set bit
+    dense = torch.relu(bits.flatten(-2) @ emb.rows + emb.bias)
+    assert torch.allclose(emb(bits), emb.norm(emb.out(dense)), atol=1e-5)
+
+
+def test_cell_head_reads_out_cells_and_scores_the_soft_target():
+    head = CellHead(4, cells=4)  # cells of 0.5 in the normalised box
+    h = torch.zeros(1, 4)
+    with torch.no_grad():
+        head.score.bias.fill_(-50.0)
+        head.score.bias[1 * 4 + 2] = 50.0  # row 1, column 2: centre (0.25, -0.25)
+    head.requires_grad_(False)
+    out = head(h)
+    assert isinstance(out, CellOutput)
+    assert torch.allclose(out.position, torch.tensor([[0.25, -0.25]]), atol=1e-6)
+    # the loss is smallest for a target at that centre, and grows with the distance from it
+    near, _ = head.loss(out, torch.tensor([[0.25, -0.25]]))
+    off, _ = head.loss(out, torch.tensor([[0.3, -0.25]]))
+    far, n = head.loss(out, torch.tensor([[-0.75, 0.75]]))
+    assert n == 1 and float(near) < float(off) < float(far)
+    # the soft target: spread over neighbours by distance, so a uniform score costs log(16)
+    with torch.no_grad():
+        head.score.bias.zero_()
+    total, _ = head.loss(head(h), torch.tensor([[-0.25, -0.25]]))
+    position_term = (head(h).position - torch.tensor([[-0.25, -0.25]])).square().sum() / head.w**2
+    assert float(total - position_term) == pytest.approx(np.log(16), abs=1e-5)
 
 
 def test_causal_models_ignore_the_future():
@@ -73,7 +122,7 @@ def test_tiny_set_is_overfitted(name, options, steps):
     target = est.normaliser.to_unit(batch.y)
     first = None
     for _ in range(steps):
-        loss = torch.nn.functional.mse_loss(est(batch.bits, batch.y), target)
+        loss = torch.nn.functional.mse_loss(_position(est(batch.bits, batch.y)), target)
         first = float(loss.detach()) if first is None else first
         opt.zero_grad()
         loss.backward()

@@ -218,3 +218,102 @@ def test_time_limit_stops_and_resume_continues(tmp_path):
         log=_quiet,
     )
     assert s["epochs"] == 3
+
+
+def test_singles_draw_every_step_of_the_epochs_trajectories_once():
+    tr, _ = _sets()
+    s = BatchSampler(tr, "tracking", 6.0, 32, (2, 6), seed=3, epoch_size=40)
+    got = [b for b in s.singles(0, 50)]
+    assert all(b.bits.shape[1:] == (1, 4, 8) and b.y.shape[1:] == (1, 2) for b in got)
+    y = torch.cat([b.y[:, 0] for b in got]).numpy()
+    assert len(y) == 40 * 6
+    # the steps of 40 whole trajectories, each once, shuffled across trajectories
+    rows = np.unique(np.concatenate([b.rows for b in got]))
+    assert len(rows) == 40
+    want = tr.positions[rows].reshape(-1, 2)
+    assert np.array_equal(np.unique(y, axis=0), np.unique(want, axis=0))
+    assert not np.array_equal(y, want)
+    again = torch.cat([b.y[:, 0] for b in s.singles(0, 50)]).numpy()
+    assert np.array_equal(y, again)  # same epoch, same draw
+
+
+def test_warmup_epochs_train_single_steps_without_early_stopping(tmp_path):
+    tr, va = _sets()
+    cfg = dict(
+        CFG, model="tn", patience=1, min_delta=0.99, options={"d": 16, "ff": 32, "hidden": 32, "cells": 8}
+    )
+    lines = []
+    s = train(
+        tr,
+        va,
+        TrainConfig(epochs=6, warmup_epochs=3, **cfg),
+        tmp_path / "run",
+        progress=False,
+        record=False,
+        log=lines.append,
+    )
+    # min_delta 0.99 stops at the first epoch that does not improve: not during the warm-up, and
+    # not at the sequence phase's first epoch, which is its own reference
+    assert s["epochs"] == 5 and s["stopped_early"]
+    assert [line.split(":")[0] for line in lines[:5]] == [
+        "tn warm-up 1",
+        "tn warm-up 2",
+        "tn warm-up 3",
+        "tn epoch 4",
+        "tn epoch 5",
+    ]
+
+
+def test_warmup_defaults_and_refusals():
+    assert TrainConfig(model="tn").warmup_epochs > 0 and TrainConfig(model="tn").loss == "cells"
+    assert TrainConfig(model="lstm").warmup_epochs == 0
+    assert TrainConfig(model="tn", task="forecasting").warmup_epochs == 0
+    for bad in (
+        dict(model="tn-match", warmup_epochs=2),
+        dict(model="tn", task="forecasting", warmup_epochs=2),
+    ):
+        with pytest.raises(EstimationError, match="warm-up"):
+            TrainConfig(**bad)
+    with pytest.raises(EstimationError, match="cell head"):
+        Estimator(TrainConfig(model="lstm", loss="cells"), 4, 8, toy_sequence_set(4, 3).normaliser())
+
+
+def test_learning_rate_schedules():
+    from estimation.training import _epoch_lr
+
+    cos = TrainConfig(model="tn", epochs=10, warmup_epochs=4, lr=1e-3, warmup_lr=4e-3, schedule="cosine")
+    lrs = [_epoch_lr(cos, e) for e in range(10)]
+    # each phase starts at its own rate and falls along half a cosine, never to zero or back up
+    assert lrs[0] == pytest.approx(4e-3) and lrs[4] == pytest.approx(1e-3)
+    assert lrs[2] == pytest.approx(2e-3) and lrs[7] == pytest.approx(0.5e-3)
+    assert all(a > b > 0 for a, b in zip(lrs[:3], lrs[1:4], strict=True))
+    assert all(a > b > 0 for a, b in zip(lrs[4:9], lrs[5:], strict=True))
+    plateau = TrainConfig(model="lstm", epochs=10, warmup_epochs=2, lr=1e-3, warmup_lr=5e-3)
+    assert plateau.schedule == "plateau"
+    # each phase's rate is set at its start (None: left as it is); the plateau scheduler steps only
+    # after the warm-up
+    assert [_epoch_lr(plateau, e) for e in range(4)] == [5e-3, None, 1e-3, None]
+    assert TrainConfig(model="tn").schedule == "cosine" and TrainConfig(model="tn").warmup_lr == 3e-3
+    with pytest.raises(EstimationError, match="schedule"):
+        TrainConfig(model="tn", schedule="linear")
+
+
+def test_warmup_holds_what_reads_across_steps():
+    from estimation.training import _train_epoch
+
+    tr, _ = _sets()
+    cfg = TrainConfig(
+        model="tn", epochs=4, warmup_epochs=2, options={"d": 16, "ff": 32, "hidden": 32, "cells": 8}
+    )
+    torch.manual_seed(0)
+    est = Estimator(cfg, tr.n_beams, tr.n_bins, tr.normaliser())
+    opt = torch.optim.Adam(est.net.parameters(), lr=1e-2)
+    sampler = BatchSampler(tr, "tracking", 6.0, 16, (2, 6), 0)
+    held = {id(p): p.detach().clone() for p in est.net.sequence_parameters()}
+    embed = [p.detach().clone() for p in est.net.embed.parameters()]
+    _train_epoch(est, opt, sampler, cfg, 0, progress=False)
+    assert all(torch.equal(p, held[id(p)]) for p in est.net.sequence_parameters())
+    assert any(not torch.equal(a, b) for a, b in zip(embed, est.net.embed.parameters(), strict=True))
+    assert all(p.requires_grad for p in est.net.parameters())
+    _train_epoch(est, opt, sampler, cfg, 2, progress=False)  # sequences: the attention learns
+    assert any(not torch.equal(p, held[id(p)]) for p in est.net.sequence_parameters())

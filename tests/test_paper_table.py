@@ -18,6 +18,8 @@ TOY = "toy:n=48,length=7"
 
 @pytest.fixture(scope="module")
 def paper_table():
+    if str(SCRIPT.parent) not in sys.path:  # the script imports its neighbour _common, as when run
+        sys.path.insert(0, str(SCRIPT.parent))
     spec = importlib.util.spec_from_file_location("paper_table", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

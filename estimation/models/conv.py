@@ -6,7 +6,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from .embedding import FingerprintEmbedding, RegressionHead
+from .embedding import FingerprintEmbedding
+from .heads import RegressionHead
 
 __all__ = ["TCNNet", "Conv1DNet"]
 

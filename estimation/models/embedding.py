@@ -1,13 +1,14 @@
-"""Learned embedding of one fingerprint (M beams x N_s bins of bits) into a d-dimensional vector."""
+"""Learned embeddings of one fingerprint (M beams x N_s bins of bits) into a d-dimensional vector."""
 
 from __future__ import annotations
 
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["FingerprintEmbedding", "sinusoidal_encoding", "RegressionHead"]
+__all__ = ["BagEmbedding", "FingerprintEmbedding", "sinusoidal_encoding"]
 
 
 class FingerprintEmbedding(nn.Module):
@@ -30,6 +31,38 @@ class FingerprintEmbedding(nn.Module):
         return self.drop(self.act(self.beams(h.flatten(-2))))
 
 
+class BagEmbedding(nn.Module):
+    """Bits ``(B, T, M, N_s)`` -> ``(B, T, d)`` through a wide hidden layer that reads only the set bits.
+
+    A fingerprint sets a few percent of its ``M N_s`` bits, so the first layer (``M N_s -> hidden``,
+    one weight row per (beam, bin)) is a sum of the rows of its set bits (``embedding_bag``): a wide
+    layer at the cost of a narrow one. Each hidden unit can then act as a detector of one pattern of
+    beams and delays, which is what telling thousands of places apart takes; ReLU, then
+    ``hidden -> d`` and a layer norm.
+    """
+
+    def __init__(self, n_beams: int, n_bins: int, d: int, hidden: int = 1024, dropout: float = 0.01):
+        super().__init__()
+        # Rows scaled so that a fingerprint of about a hundred set bits starts near unit variance.
+        self.rows = nn.Parameter(torch.randn(n_beams * n_bins, hidden) * 0.1)
+        self.bias = nn.Parameter(torch.zeros(hidden))
+        self.out = nn.Linear(hidden, d)
+        self.norm = nn.LayerNorm(d)
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, bits: torch.Tensor) -> torch.Tensor:
+        lead = bits.shape[:-2]
+        flat = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])
+        which = flat.nonzero()  # (n_set, 2): fingerprint, bit; rows in order
+        counts = torch.bincount(which[:, 0], minlength=flat.shape[0])
+        offsets = torch.cumsum(counts, 0) - counts
+        # Bits are 0/1 here, but a soft input (probabilities) is weighed by its value.
+        weights = flat[which[:, 0], which[:, 1]].to(self.rows.dtype)
+        h = F.embedding_bag(which[:, 1], self.rows, offsets, mode="sum", per_sample_weights=weights)
+        h = self.drop(F.relu(h + self.bias))
+        return self.norm(self.out(h)).reshape(*lead, -1)
+
+
 def sinusoidal_encoding(positions: torch.Tensor, d: int) -> torch.Tensor:
     """Vaswani et al. positional encoding: ``(T,)`` step indices -> ``(T, d)``."""
     pos = positions.float()[:, None]
@@ -39,10 +72,3 @@ def sinusoidal_encoding(positions: torch.Tensor, d: int) -> torch.Tensor:
     pe[:, 0::2] = torch.sin(pos * freq)
     pe[:, 1::2] = torch.cos(pos * freq[: d // 2])
     return pe
-
-
-class RegressionHead(nn.Sequential):
-    """Fully connected ``d -> hidden -> out`` with ReLU."""
-
-    def __init__(self, d: int, out: int, hidden: int = 64):
-        super().__init__(nn.Linear(d, hidden), nn.ReLU(), nn.Linear(hidden, out))

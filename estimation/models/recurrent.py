@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .embedding import FingerprintEmbedding, RegressionHead
+from .embedding import FingerprintEmbedding
+from .heads import RegressionHead
 
 __all__ = ["RecurrentNet"]
 

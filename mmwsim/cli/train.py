@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from estimation.names import LOSSES, MODEL_NAMES, TASKS
+from estimation.names import LOSSES, MODEL_NAMES, SCHEDULES, TASKS
 
 from ..constants import SIGMA_DB
 
@@ -29,7 +29,10 @@ def register(sub) -> None:
     p.add_argument("--model", required=True, choices=MODEL_NAMES, help="network to train")
     p.add_argument("--out", required=True, help="run folder to write")
     p.add_argument(
-        "--epochs", type=int, default=100, help="maximum epochs (default 100; early stopping may end sooner)"
+        "--epochs",
+        type=int,
+        help="maximum epochs, warm-up included (default: the model's own, 200 for tn, else 100; early "
+        "stopping may end sooner)",
     )
     p.add_argument("--resume", action="store_true", help="continue from RUN/checkpoint.pt")
     p.add_argument(
@@ -47,13 +50,20 @@ def register(sub) -> None:
     p.add_argument("--t-obs", type=int, default=5, help="forecasting: observed steps (default 5)")
     p.add_argument("--horizon", type=int, default=2, help="forecasting: predicted steps (default 2)")
     p.add_argument("--batch-size", type=int, default=64)
-    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--lr", type=float, help="learning rate (default: 3e-4 for tn, else 1e-3)")
+    p.add_argument("--warmup-lr", type=float, help="learning rate of the warm-up epochs (default 3e-3)")
+    p.add_argument(
+        "--schedule",
+        choices=SCHEDULES,
+        help="learning rate: plateau (halved after 3 epochs without improvement) or cosine "
+        "(each phase down to zero by its last epoch); default cosine for tn, else plateau",
+    )
     p.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
     p.add_argument(
         "--min-delta",
         type=float,
-        default=1e-3,
-        help="relative fall of the validation loss that counts as an improvement (default 1e-3)",
+        help="relative fall of the validation loss that counts as an improvement (default: 0 for tn, "
+        "else 1e-3)",
     )
     p.add_argument(
         "--epoch-size",
@@ -62,10 +72,16 @@ def register(sub) -> None:
         help="trajectories per epoch, a fresh random subset each epoch (default 0 = all)",
     )
     p.add_argument(
+        "--warmup-epochs",
+        type=int,
+        help="tracking: epochs of single fingerprints (every step of the epoch's trajectories on its "
+        "own) before sequences (default: the model's own, 24 for tn, 0 for the others)",
+    )
+    p.add_argument(
         "--loss",
         choices=LOSSES,
-        default="",
-        help="mse (the paper's) or rmse (mean per-trajectory RMSE); default rmse for tn-match, else mse",
+        help="mse (the paper's), rmse (mean per-trajectory RMSE) or cells (a cell head's own); "
+        "default cells for tn, rmse for tn-match, else mse",
     )
     p.add_argument(
         "--option",
@@ -137,6 +153,9 @@ def _train(args) -> int:
         horizon=args.horizon,
         seed=args.seed,
         epoch_size=args.epoch_size,
+        warmup_epochs=args.warmup_epochs,
+        warmup_lr=args.warmup_lr,
+        schedule=args.schedule,
         loss=args.loss,
         options=dict(_option(o) for o in args.option),
     )

@@ -1,0 +1,146 @@
+"""How a trained model tracks users whose motion is not ours, through the public library API.
+
+    python benchmarks/foreign_motion.py RUN DATASET [METHOD ...] [--n 1000] [--length 7] [--noise 6]
+
+Others evaluate our models on trajectories of their own generators. This script makes two such
+generators that share nothing with :mod:`mmwsim.trajectories` but the free space:
+
+* ``smooth``: velocity as a mean-reverting random process (Ornstein-Uhlenbeck on speed, heading a
+  random walk): pedestrians at 0.6-2.2 m/s with 25 degrees of heading noise per second, vehicles at
+  5-16 m/s with 8 degrees, anywhere in the free space (no street network), occasional sharp turns;
+* ``events``: our own event model with other habits: pedestrians faster and turning four times as
+  often by 30 degrees, vehicles off the streets at 11 m/s mean (up to 16) turning by 15 degrees.
+
+Both start anywhere in the area (the hold-out region included), step at 1 Hz and bounce off
+buildings by drawing a new heading. Fingerprints are drawn from the stored PDPs of the nearest
+grid point with fresh noise (``Dataset.fingerprints``); the model is loaded with
+``Estimator.load(run).attach(ds)`` and asked with ``predict``, as a user would. Printed beside the
+same model's error on the data set's own ``test/seen`` trajectories (same noise, same length).
+METHOD names classical trackers to evaluate on the same draws too (``match-cv``, ``knn-kalman``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+KINDS = ("pedestrian", "vehicle")
+
+
+def smooth_walks(fs, kind: str, n: int, length: int, rng: np.random.Generator) -> np.ndarray:
+    """``(n, length, 2)`` positions of Ornstein-Uhlenbeck walkers in the free space ``fs``."""
+    if kind == "pedestrian":
+        lo, hi, sd_speed, sd_heading, p_sharp = 0.6, 2.2, 0.25, math.radians(25), 0.03
+    else:
+        lo, hi, sd_speed, sd_heading, p_sharp = 5.0, 16.0, 1.5, math.radians(8), 0.05
+    pos = fs.sample(n, rng)
+    mean = rng.uniform(lo, hi, n)
+    speed = mean.copy()
+    heading = rng.uniform(0, 2 * np.pi, n)
+    out = np.empty((n, length, 2))
+    out[:, 0] = pos
+    for t in range(1, length):
+        speed = np.clip(speed + 0.3 * (mean - speed) + sd_speed * rng.normal(size=n), 0.2 * lo, 1.2 * hi)
+        sharp = rng.random(n) < p_sharp
+        heading = heading + sd_heading * rng.normal(size=n) + sharp * rng.choice([-1, 1], n) * np.pi / 2
+        nxt = pos + speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+        for _ in range(30):  # bounce: a new heading until the step is free
+            bad = ~fs.segments_ok(pos, nxt)
+            if not bad.any():
+                break
+            heading[bad] = rng.uniform(0, 2 * np.pi, int(bad.sum()))
+            nxt[bad] = pos[bad] + speed[bad, None] * np.column_stack(
+                [np.cos(heading[bad]), np.sin(heading[bad])]
+            )
+        bad = ~fs.segments_ok(pos, nxt)
+        nxt[bad] = pos[bad]  # boxed in: stands still
+        pos = nxt
+        out[:, t] = pos
+    return out
+
+
+def event_walks(ds, kind: str, n: int, length: int, seed: int) -> np.ndarray:
+    """``(n, length, 2)`` positions from our event model with other parameters (vehicles off the
+    street network)."""
+    from mmwsim.trajectories import generate_for_dataset, motion_model
+
+    base = motion_model(kind)
+    if kind == "pedestrian":
+        model = base.replace(mean_speed=1.6, max_speed=2.4, turn_rate=30.0, p_turn=0.2, p_stop=0.05)
+    else:
+        model = base.replace(mean_speed=11.0, max_speed=16.0, turn_rate=15.0, p_turn=0.15, p_stop=0.05)
+    t = generate_for_dataset(ds, {kind: n}, length, seed, models={kind: model}, vehicles_on_streets=False)
+    return t.positions
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", help="training run folder (or model.pt)")
+    ap.add_argument("dataset", help="the data set it was trained on (zarr)")
+    ap.add_argument("methods", nargs="*", help="classical trackers to compare (match-cv, knn-kalman)")
+    ap.add_argument("--n", type=int, default=1000, help="trajectories per kind and generator (default 1000)")
+    ap.add_argument("--length", type=int, default=7)
+    ap.add_argument("--noise", type=float, default=6.0, help="dB (default 6)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+
+    import torch
+
+    from estimation import Estimator, method
+    from estimation.adapter import load_splits
+    from estimation.metrics import trajectory_rmse
+    from mmwsim import Dataset, FreeSpace
+    from mmwsim.geometry.freespace import CoverageMask
+
+    ds = Dataset.open(args.dataset)
+    est = Estimator.load(args.run).attach(ds, sigma=args.noise)
+    fs = FreeSpace.from_scene(
+        ds.scene(), clearance=0.5, coverage=CoverageMask.from_dataset(ds), bounds=ds.grid.bounds
+    )
+    rng = np.random.default_rng(args.seed)
+    sets: dict[str, dict[str, np.ndarray]] = {"smooth": {}, "events": {}}
+    for k in KINDS:
+        sets["smooth"][k] = smooth_walks(fs, k, args.n, args.length, rng)
+        sets["events"][k] = event_walks(ds, k, args.n, args.length, args.seed + 1)
+    own, _ = load_splits(args.dataset, ("test/seen",), dataset=ds)
+    seen = own["test/seen"]
+    kinds = np.asarray(["static", "pedestrian", "hybrid", "vehicle"])[seen.kind]
+    sets["own test/seen"] = {
+        k: seen.positions[kinds == k][: args.n, : args.length].astype(np.float64) for k in KINDS
+    }
+
+    others = []
+    for name in args.methods:
+        m = method(name)
+        grid = load_splits(args.dataset, ("validation",), dataset=ds)[0]["validation"]
+        others.append(m.for_sigma(args.noise, grid))
+
+    print(
+        f"{args.run}: {args.length} steps, {args.noise:g} dB, mean per-trajectory RMSE in metres (median, p95)"
+    )
+    for gen, per_kind in sets.items():
+        for k, pos in per_kind.items():
+            idx = ds.nearest(pos.reshape(-1, 2))
+            bits = ds.fingerprints(idx, np.random.default_rng(args.seed + 7))
+            b = torch.from_numpy(bits.reshape(len(pos), args.length, *bits.shape[1:])).float()
+            t0 = time.perf_counter()
+            pred = np.concatenate([est.predict(b[i : i + 500]).numpy() for i in range(0, len(b), 500)])
+            r = trajectory_rmse(pred, pos)
+            line = (
+                f"  {gen:14s} {k:10s} {est.name}: {r.mean():.2f} ({np.median(r):.2f}, {np.quantile(r, 0.95):.2f})"
+                f"  [{time.perf_counter() - t0:.0f} s]"
+            )
+            for m in others:
+                p2 = m.predict_lengths(b.bool(), [args.length])[args.length][0]
+                r2 = trajectory_rmse(p2, pos)
+                line += f"  {m.name}: {r2.mean():.2f} ({np.median(r2):.2f})"
+            print(line, flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -52,7 +52,7 @@ RECIPE_MINUTES = 30.0
 """The wall-clock budget a model's own epoch count (its cosine schedule's horizon) is sized for."""
 
 
-def budget_settings(model: str, minutes: float, cap: int | None = None, task: str = "tracking") -> dict:
+def budget_settings(model: str, minutes: float, cap: int | None = None) -> dict:
     """TrainConfig settings that fit a model's own recipe into a budget of ``minutes``.
 
     A recipe with a cosine schedule decays to zero by its last epoch, so a shorter budget must

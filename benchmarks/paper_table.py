@@ -259,7 +259,7 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
                 model=model,
                 task=task,
                 sigma=args.sigma,
-                **budget_settings(model, args.budget_minutes, cap=args.max_epochs, task=task),
+                **budget_settings(model, args.budget_minutes, cap=args.max_epochs),
                 patience=args.patience,
                 epoch_size=protocol["epoch_size"],
                 seed=args.seed,

@@ -7,7 +7,7 @@ import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
@@ -83,7 +83,7 @@ class TrainConfig:
     epoch_size : trajectories drawn (afresh, with fresh noise) per epoch; 0 = all of them
     loss : ``mse`` (the paper's, over all coordinates), ``rmse`` (mean per-trajectory RMSE, the
         evaluation metric, which weighs a lost track less than squared errors do) or ``cells`` (a
-        cell head's cross-entropy plus squared error, see :class:`~estimation.models.CellHead`); unset:
+        cell head's cross-entropy plus a Huber position term, see :class:`~estimation.models.CellHead`); unset:
         the model's own (``cells`` for ``tn``, ``rmse`` for ``tn-match``, ``mse`` for the others)
     warmup_epochs : tracking: epochs of single fingerprints before the sequences: every step of the
         epoch's trajectories on its own, shuffled, in batches of ``4 * batch_size`` at learning rate
@@ -114,7 +114,7 @@ class TrainConfig:
     warmup_epochs: int | None = None
     warmup_lr: float | None = None
     schedule: Schedule | None = None
-    loss: Loss | Literal[""] | None = None
+    loss: Loss | None = None
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -122,7 +122,7 @@ class TrainConfig:
         own_epochs = self.epochs is None
         for name, default in RECIPE_DEFAULTS.items():
             current = getattr(self, name)
-            if current is None or current == "":
+            if current is None:
                 value = spec.recipe.get(name, default)
                 if name == "warmup_epochs" and self.task != "tracking":
                     value = 0

@@ -23,7 +23,7 @@ TASKS: tuple[Task, ...] = get_args(Task)
 
 Loss = Literal["mse", "rmse", "cells"]
 """``mse``: the paper's, over all coordinates; ``rmse``: the mean per-trajectory RMSE; ``cells``: a
-cell head's own (cross-entropy over the cells plus the squared error, see
+cell head's own (cross-entropy over the cells plus a Huber term on the position, see
 :class:`estimation.models.heads.CellHead`)."""
 LOSSES: tuple[Loss, ...] = get_args(Loss)
 

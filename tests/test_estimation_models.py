@@ -98,6 +98,9 @@ def test_cell_head_reads_out_cells_and_scores_the_soft_target():
     total, _ = head.loss(head(h), torch.tensor([[-0.25, -0.25]]))
     position_term = (head(h).position - torch.tensor([[-0.25, -0.25]])).square().sum() / head.w**2
     assert float(total - position_term) == pytest.approx(np.log(16), abs=1e-5)
+    # beyond one cell the position term grows linearly (Huber): 4.5 squared cells cost 2 sqrt(4.5) - 1
+    total, _ = head.loss(head(h), torch.tensor([[0.75, 0.75]]))
+    assert float(total) == pytest.approx(np.log(16) + 2 * np.sqrt(4.5) - 1, abs=1e-5)
 
 
 def test_causal_models_ignore_the_future():

@@ -190,11 +190,6 @@ class TransformerNet(nn.Module):
         """What reads across steps (attention layers, step and future embeddings, the decoder): held
         still during warm-up epochs, so that with ``identity_init`` the stack stays the identity
         while the embedding and head learn single fingerprints."""
-        parts: list[nn.Module | nn.Parameter | None] = [self.encoder, self.decoder, self.step, self.future]
-        out: list[nn.Parameter] = []
-        for p in parts:
-            if isinstance(p, nn.Module):
-                out.extend(p.parameters())
-            elif p is not None:
-                out.append(p)
-        return out
+        modules = [m for m in (self.encoder, self.decoder) if m is not None]
+        extra = [p for p in (self.step, self.future) if p is not None]
+        return [p for m in modules for p in m.parameters()] + extra

@@ -1,6 +1,6 @@
 """How far ahead tn-match's tracks carry: forecast error 1, 2 and 3 s past the last fingerprint.
 
-Usage: python benchmarks/forecast_tn_match.py RUN DATASET [--t-obs 4] [--horizon 3] [--max 1000]
+Usage: python benchmarks/forecast_tn_match.py RUN DATASET [--t-obs 4] [--horizon 3] [--max 1000] [--oracle]
 
 Takes a ``tn-match`` run (trained for tracking or forecasting), tracks the first ``t_obs`` steps of
 test trajectories from fingerprints with fresh 6 dB noise and extrapolates ``horizon`` steps
@@ -8,6 +8,9 @@ test trajectories from fingerprints with fresh 6 dB noise and extrapolates ``hor
 region), the tracking RMSE over the observed steps and the mean distance to the true position at
 each forecast step (metres) with its ratio to the tracking error, and the same forecast from the
 true last position and velocity: what the users' own changes of motion leave unpredictable.
+``--oracle`` adds the floor on the same draws: the oracle's particle filter (the generator's motion
+model, the exact likelihood) tracking the observed steps and carrying its particles on
+(:class:`estimation.oracle.OracleMethod`, forecasting), with its own tracking error.
 """
 
 from __future__ import annotations
@@ -27,6 +30,9 @@ def main() -> None:
     ap = run_dataset_parser(__doc__)
     ap.add_argument("--t-obs", type=int, default=4)
     ap.add_argument("--horizon", type=int, default=3)
+    ap.add_argument(
+        "--oracle", action="store_true", help="also the oracle's forecast (seconds per trajectory)"
+    )
     args = ap.parse_args()
     torch.set_num_threads(2)
 
@@ -61,9 +67,23 @@ def main() -> None:
         future = true[:, args.t_obs : args.t_obs + args.horizon]
         for name, track in (("tn-match", tracked), ("true last position and velocity", truth)):
             pred = extrapolate(track.double(), args.horizon).numpy()
-            dist = np.linalg.norm(pred - future, axis=-1).mean(0)
-            steps = ", ".join(f"{h + 1} s {d:.2f} m ({d / track_err:.2f}x)" for h, d in enumerate(dist))
-            print(f"    forecast from {name}: {steps}")
+            _print_steps(f"forecast from {name}", pred, future, track_err)
+        if args.oracle:
+            from estimation.oracle import OracleMethod
+
+            t0 = time.perf_counter()
+            m = OracleMethod(args.dataset).for_sigma(args.sigma, sets["validation"])
+            both = m.oracle.track(bits, m.matcher, [args.t_obs], horizon=args.horizon)[args.t_obs]
+            own = trajectory_rmse(both[:, : args.t_obs], true[:, : args.t_obs]).mean()
+            print(f"    oracle: tracking RMSE {own:.2f} m ({time.perf_counter() - t0:.1f} s)")
+            _print_steps("oracle forecast (the floor)", both[:, args.t_obs :], future, track_err)
+
+
+def _print_steps(name: str, pred: np.ndarray, future: np.ndarray, track_err: float) -> None:
+    """Mean distance at every forecast step, and its ratio to tn-match's tracking error."""
+    dist = np.linalg.norm(pred - future, axis=-1).mean(0)
+    steps = ", ".join(f"{h + 1} s {d:.2f} m ({d / track_err:.2f}x)" for h, d in enumerate(dist))
+    print(f"    {name}: {steps}")
 
 
 if __name__ == "__main__":

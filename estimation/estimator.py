@@ -84,13 +84,15 @@ class TrainConfig:
     loss : ``mse`` (the paper's, over all coordinates), ``rmse`` (mean per-trajectory RMSE, the
         evaluation metric, which weighs a lost track less than squared errors do) or ``cells`` (a
         cell head's cross-entropy plus a Huber position term, see :class:`~estimation.models.CellHead`); unset:
-        the model's own (``cells`` for ``tn``, ``rmse`` for ``tn-match``, ``mse`` for the others)
+        the model's own (``rmse`` for ``tn-match``, ``cells`` for the others)
     warmup_epochs : tracking: epochs of single fingerprints before the sequences: every step of the
         epoch's trajectories on its own, shuffled, in batches of ``4 * batch_size`` at learning rate
         ``warmup_lr`` (unset: 3e-3); they teach the fingerprint embedding far faster than sequences, whose
-        steps crowd one place. They count towards ``epochs``; early stopping and the plateau
-        schedule wait for the sequences. Unset: the model's own (24 for ``tn``, 0 for the others),
-        in proportion when ``epochs`` is set (``tn``: 24 of its 200)
+        steps crowd one place. A network's ``sequence_parameters()`` (``tn``'s attention layers)
+        are held meanwhile; the baselines train whole on one-step sequences. They count towards
+        ``epochs``; early stopping and the plateau schedule wait for the sequences. Unset: the
+        model's own (24 of 200 for the sequence networks, 0 for ``tn-match``), in proportion when
+        ``epochs`` is set
     options : extra constructor arguments of the network (e.g. ``{"d": 64}``)
     """
 

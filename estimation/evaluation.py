@@ -225,7 +225,7 @@ def classical_method(
 
     ``task``, ``t_obs`` and ``horizon`` set what ``knn-kalman`` estimates, ``fit_length`` the
     validation crops its parameters are fitted on; ``match-cv`` tracks and fits nothing. ``oracle``
-    (the floor, :class:`~estimation.oracle.OracleMethod`, tracking) still needs its data set:
+    (the floor, :class:`~estimation.oracle.OracleMethod`, either task) still needs its data set:
     ``use_dataset(path)`` before :func:`evaluate`.
     """
     if name == "knn-kalman":
@@ -235,7 +235,7 @@ def classical_method(
     if name == "oracle":
         from .oracle import OracleMethod  # scipy and shapely only when asked for
 
-        return OracleMethod(seed=seed)
+        return OracleMethod(seed=seed, task=task, t_obs=t_obs, horizon=horizon)
     raise EstimationError(f"unknown classical tracker {name!r} (choose from {', '.join(CLASSICAL_NAMES)})")
 
 

@@ -686,10 +686,11 @@ class Oracle:
 
     # ------------------------------------------------------------------ smoothing
     def _particles(
-        self, kind: str, lik: np.ndarray, lengths: list[int], rng: np.random.Generator
+        self, kind: str, lik: np.ndarray, lengths: list[int], rng: np.random.Generator, horizon: int = 0
     ) -> tuple[dict[int, np.ndarray], np.ndarray]:
         """One kind's particle smoother over ``lik (B, T, G)``: estimates ``{L: (B, L, 2)}`` and the
-        log evidence of every prefix ``(B, T)``."""
+        log evidence of every prefix ``(B, T)``; with ``horizon`` > 0 the estimate of ``L = T`` is
+        followed by its forecast, ``(B, T + horizon, 2)`` (:meth:`_ahead`)."""
         motion, N = self.motion[kind], self.n_particles[kind]
         B, T, _ = lik.shape
         state, logw = motion.start(lik[:, 0], N, rng)
@@ -721,7 +722,48 @@ class Oracle:
                 if t:
                     idx = np.take_along_axis(anc[t - 1], idx, axis=1)
             out[L] = est
+        if horizon > 0:
+            ahead = self._ahead(motion, state, logw, out[T][:, -1], horizon, rng)
+            out[T] = np.concatenate([out[T], ahead], axis=1)
         return out, evidence
+
+    def _ahead(
+        self,
+        motion: Any,
+        state: _State,
+        logw: np.ndarray,
+        last: np.ndarray,
+        horizon: int,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """The filter's particles at the last observed step carried ``horizon`` steps on by the
+        generator's transition, no fingerprint to weigh them: the posterior-mean position of every
+        future step ``(B, horizon, 2)``.
+
+        A particle whose step the generator would reject drops out; where none is left (too few
+        particles for that trajectory) the forecast stays at the previous step's (``last``, the
+        filtered position, before the first)."""
+        B, N = logw.shape
+        rows_of = np.arange(B)[:, None] * N
+        none = np.zeros((B, self.grid.size))  # no fingerprint: a restart's heading is uniform
+        out = np.empty((B, horizon, 2))
+        prev = last
+        for h in range(horizon):
+            a, logw = _resample(logw, rng)
+            state = state.take((a + rows_of).ravel())
+            state, ok, rows, correction = motion.step(state, rng, none, N)
+            keep = ok.reshape(B, N) & (rows.reshape(B, N) >= 0)
+            logw = logw + np.where(
+                keep, np.reshape(correction, (B, N)) if np.ndim(correction) else 0.0, -np.inf
+            )
+            top = logw.max(axis=1, keepdims=True)
+            alive = np.isfinite(top[:, 0])
+            W = np.exp(logw - np.where(alive[:, None], top, 0.0))
+            W /= np.maximum(W.sum(axis=1, keepdims=True), 1e-300)
+            est = np.einsum("bn,bnc->bc", W, state.pos.reshape(B, N, 2))
+            out[:, h] = np.where(alive[:, None], est, prev)
+            prev = out[:, h]
+        return out
 
     def _log_acceptance(self, kind: str, T: int) -> np.ndarray:
         """``(T,)`` log probability that the generator keeps a trajectory of ``kind`` of each
@@ -745,7 +787,7 @@ class Oracle:
         return self._acceptance[key]
 
     def _static(
-        self, kind: str, lik: np.ndarray, lengths: list[int]
+        self, kind: str, lik: np.ndarray, lengths: list[int], horizon: int = 0
     ) -> tuple[dict[int, np.ndarray], np.ndarray]:
         """A user standing still, exactly: its cell's posterior from all steps' likelihoods times the
         cell's free share; the estimate is the posterior mean of the cells' free centroids."""
@@ -756,9 +798,14 @@ class Oracle:
         z = w.sum(axis=2)
         evidence = np.log(z) + top[..., 0] + math.log(self.grid.spacing**2 / sp.area)
         mean = np.einsum("btg,gc->btc", w, sp.centroid) / z[..., None]
-        return {L: np.repeat(mean[:, L - 1 : L], L, axis=1) for L in lengths}, evidence
+        T = lik.shape[1]
+        return {
+            L: np.repeat(mean[:, L - 1 : L], L + (horizon if L == T else 0), axis=1) for L in lengths
+        }, evidence
 
-    def smooth(self, loglik: np.ndarray | torch.Tensor, lengths: list[int], batch_index: int = 0) -> dict:
+    def smooth(
+        self, loglik: np.ndarray | torch.Tensor, lengths: list[int], batch_index: int = 0, horizon: int = 0
+    ) -> dict:
         """Smoothed positions of one batch of trajectories for several prefix lengths.
 
         Parameters
@@ -770,10 +817,14 @@ class Oracle:
             Prefix lengths in ``1..T``; the estimate of prefix ``L`` uses its first ``L`` steps only.
         batch_index : int
             Mixed into the seed, so that batches draw different particles.
+        horizon : int
+            Steps to forecast past the last one: the estimate of ``L = T`` then has ``T + horizon``
+            steps, the last ``horizon`` the posterior mean of where the generator takes the user
+            next given all ``T`` fingerprints.
 
         Returns
         -------
-        dict L -> (B, L, 2) float64, metres
+        dict L -> (B, L, 2) float64, metres (``L = T``: ``(B, T + horizon, 2)``)
         """
         lik = np.asarray(loglik.numpy() if isinstance(loglik, torch.Tensor) else loglik, dtype=np.float64)
         if lik.ndim != 3 or lik.shape[2] != self.grid.size or lik.shape[1] < 1:
@@ -786,15 +837,17 @@ class Oracle:
             raise EstimationError(f"oracle: prefix lengths {lengths} must lie within 1..{T}")
         if np.isnan(lik).any():
             raise EstimationError("oracle: log-likelihoods contain NaN")
+        if horizon < 0:
+            raise EstimationError(f"oracle: horizon must be >= 0 (got {horizon})")
         ests, evid = {}, {}
         for code, kind in enumerate(KINDS):
             if kind not in self.kinds:
                 continue
             if kind in self.static_space:
-                ests[kind], evid[kind] = self._static(kind, lik, lengths)
+                ests[kind], evid[kind] = self._static(kind, lik, lengths, horizon)
             else:
                 rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(batch_index, code)))
-                ests[kind], evid[kind] = self._particles(kind, lik, lengths, rng)
+                ests[kind], evid[kind] = self._particles(kind, lik, lengths, rng, horizon)
                 evid[kind] = evid[kind] - self._log_acceptance(kind, T)
         out = {}
         for L in lengths:
@@ -809,13 +862,20 @@ class Oracle:
                 # No particle of any kind survived (the particle count was too small for this
                 # trajectory): fall back on each step's own likelihood-weighted mean.
                 w = np.exp(lik[dead, :L] - lik[dead, :L].max(axis=2, keepdims=True))
-                out[L][dead] = np.einsum("btg,gc->btc", w, self.grid.xy) / w.sum(axis=2)[..., None]
+                own = np.einsum("btg,gc->btc", w, self.grid.xy) / w.sum(axis=2)[..., None]
+                extra = out[L].shape[1] - L  # a forecast: stay at the last step's
+                out[L][dead] = np.concatenate([own, np.repeat(own[:, -1:], extra, axis=1)], axis=1)
                 if L == lengths[-1]:
                     self.dead += int(dead.sum())
         return out
 
     def track(
-        self, bits: torch.Tensor, matcher: FingerprintMatcher, lengths: list[int], batch: int | None = None
+        self,
+        bits: torch.Tensor,
+        matcher: FingerprintMatcher,
+        lengths: list[int],
+        batch: int | None = None,
+        horizon: int = 0,
     ) -> dict[int, np.ndarray]:
         """Smoothed positions of fingerprint sequences.
 
@@ -829,10 +889,12 @@ class Oracle:
         batch : int, optional
             Trajectories smoothed at once (default: as many as keep about half a million
             particles per kind).
+        horizon : int
+            Steps forecast past the last fingerprint (see :meth:`smooth`).
 
         Returns
         -------
-        dict L -> (n, L, 2) float64, metres
+        dict L -> (n, L, 2) float64, metres (``L = T``: ``(n, T + horizon, 2)``)
         """
         if bits.ndim != 4 or bits.shape[1] < 1:
             raise EstimationError(f"oracle: bits must be (n, T, M, N_s), got {tuple(bits.shape)}")
@@ -846,15 +908,15 @@ class Oracle:
         for i, a in enumerate(range(0, n, batch)):
             b = bits[a : a + batch]
             lik = matcher.scores(b.reshape(-1, *b.shape[2:]).float()).reshape(len(b), T, -1)
-            for L, est in self.smooth(lik, lengths, batch_index=i).items():
+            for L, est in self.smooth(lik, lengths, batch_index=i, horizon=horizon).items():
                 parts[L].append(est)
         if n == 0:
-            return {L: np.zeros((0, L, 2)) for L in parts}
+            return {L: np.zeros((0, L + (horizon if L == T else 0), 2)) for L in parts}
         return {L: np.concatenate(v) for L, v in parts.items()}
 
 
 class OracleMethod:
-    """The oracle as an evaluation method (``oracle``; tracking, nothing to fit).
+    """The oracle as an evaluation method (``oracle``; tracking or forecasting, nothing to fit).
 
     It needs what the generator knew: the data set's scene, street network, validity mask and the
     trajectories' generation attributes (motion models, counts, bounds, rate).
@@ -870,10 +932,12 @@ class OracleMethod:
     eps : float
         Floor of the bit probabilities of the likelihood; the matcher's default (1e-6) is a
         robustness floor, the oracle's tiny one makes the likelihood the exact one.
+    task, t_obs, horizon : str, int, int
+        ``"forecasting"``: the ``horizon`` positions after the first ``t_obs`` steps, the filter's
+        particles carried on by the generator's own transition (the forecasting floor).
     """
 
     name = "oracle"
-    task, t_obs, horizon = "tracking", 0, 0
     n_parameters = 0
     train_seconds = 0.0
     epochs = 0
@@ -885,8 +949,18 @@ class OracleMethod:
         n_particles: int | dict[str, int] = ORACLE_PARTICLES,
         seed: int = 0,
         eps: float = 1e-30,
+        task: str = "tracking",
+        t_obs: int = 0,
+        horizon: int = 0,
     ):
+        if task not in ("tracking", "forecasting") or (task == "forecasting" and (t_obs < 1 or horizon < 1)):
+            raise EstimationError(
+                f"oracle: task {task!r} (tracking, or forecasting with t_obs and horizon >= 1; got "
+                f"{t_obs}, {horizon})"
+            )
         self.n_particles, self.seed, self.eps = n_particles, seed, eps
+        self.task = task
+        self.t_obs, self.horizon = (t_obs, horizon) if task == "forecasting" else (0, 0)
         self.source: Any = None
         self.oracle: Oracle | None = None
         self.matcher: FingerprintMatcher | None = None
@@ -918,7 +992,7 @@ class OracleMethod:
             )
         if validation is None:
             raise EstimationError("oracle needs the data set's grid (pass validation trajectories)")
-        m = OracleMethod(None, self.n_particles, self.seed, self.eps)
+        m = OracleMethod(None, self.n_particles, self.seed, self.eps, self.task, self.t_obs, self.horizon)
         # A relabelled oracle (another particle count beside the default) keeps its label.
         m.name, m.source, m.oracle = self.name, self.source, self.oracle
         m.matcher = FingerprintMatcher(
@@ -929,12 +1003,21 @@ class OracleMethod:
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
         """Predictions for inputs cropped to each length: ``{L: (pred (n, L, 2) metres, seconds)}``;
         the one pass over the longest prefix serves all (a prefix's estimate sees only its own
-        steps), each length charged its share of the time."""
+        steps), each length charged its share of the time. Forecasting: ``{L: (pred (n, horizon,
+        2), seconds)}``, the positions after the first ``L`` steps (``L`` is ``t_obs`` in
+        evaluation)."""
         if self.oracle is None or self.matcher is None:
             raise EstimationError("oracle: call for_sigma(sigma, validation) before predicting")
         T = max(lengths)
         if T > bits.shape[1]:
             raise EstimationError(f"oracle: length {T} exceeds the {bits.shape[1]} steps given")
+        if self.task == "forecasting":
+            out = {}
+            for L in lengths:
+                t0 = time.perf_counter()
+                pred = self.oracle.track(bits[:, :L], self.matcher, [L], horizon=self.horizon)[L]
+                out[L] = (pred[:, L:], time.perf_counter() - t0)
+            return out
         t0 = time.perf_counter()
         out = self.oracle.track(bits[:, :T], self.matcher, list(lengths))
         seconds = time.perf_counter() - t0

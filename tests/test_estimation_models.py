@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from itertools import product
+
 import numpy as np
 import pytest
 import torch
 
 from estimation import MODELS, BatchSampler, Estimator, TrainConfig, build_network, count_parameters
-from estimation.models import PAPER_OPTIONS, CellHead, CellOutput
+from estimation.models import BASELINE_PAPER_OPTIONS, PAPER_OPTIONS, CellHead, CellOutput
 from estimation.models import positions as _position
 from estimation.models.embedding import BagEmbedding
 from estimation.synthetic import toy_sequence_set
@@ -45,6 +47,16 @@ def test_autoregressive_decoder_matches_teacher_forcing_on_its_own_outputs(task,
     # Feeding the model's own outputs back with the causal mask in one pass gives the same result.
     net.train()
     assert torch.allclose(_position(net(bits, y)), y, atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["lstm", "gru", "rnn", "tcn", "conv1d"])
+def test_baselines_share_tn_front_and_keep_the_papers(name):
+    ours = build_network(name, 32, 81, "forecasting", 3)
+    assert isinstance(ours.head, CellHead) and isinstance(ours.embed, BagEmbedding)
+    paper = build_network(name, 32, 81, "forecasting", 3, **BASELINE_PAPER_OPTIONS)
+    assert not isinstance(paper.head, CellHead) and not isinstance(paper.embed, BagEmbedding)
+    bits = (torch.rand(5, 6, 32, 81) < 0.1).float()
+    assert paper(bits).shape == (5, 3, 2) and isinstance(ours(bits), CellOutput)
 
 
 def test_paper_configuration_is_the_papers_size():
@@ -104,13 +116,15 @@ def test_cell_head_reads_out_cells_and_scores_the_soft_target():
 
 
 def test_causal_models_ignore_the_future():
-    """TCN, LSTM: the estimate at step t depends only on fingerprints up to t."""
-    for name in ("tcn", "lstm", "gru", "rnn"):
-        net = build_network(name, 4, 6, "tracking", 1, dropout=0.0).eval()
+    """TCN, LSTM: the estimate at step t depends only on fingerprints up to t (either front)."""
+    for name, options in product(("tcn", "lstm", "gru", "rnn"), ({}, BASELINE_PAPER_OPTIONS)):
+        net = build_network(name, 4, 6, "tracking", 1, dropout=0.0, **options).eval()
         bits = (torch.rand(2, 5, 4, 6) < 0.3).float()
         changed = bits.clone()
         changed[:, 3:] = 1 - changed[:, 3:]
-        assert torch.allclose(net(bits)[:, :3], net(changed)[:, :3], atol=1e-6), name
+        now, later = _position(net(bits)), _position(net(changed))
+        assert torch.allclose(now[:, :3], later[:, :3], atol=1e-6), name
+        assert not torch.allclose(now[:, 3:], later[:, 3:], atol=1e-6), name
 
 
 @pytest.mark.parametrize("name,options,steps", [("tn", {"d": 32, "ff": 64}, 200), ("lstm", {}, 250)])

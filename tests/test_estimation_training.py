@@ -39,7 +39,17 @@ def _sets():
     return tr, va
 
 
-CFG = dict(model="tcn", batch_size=32, sigma=6.0, patience=50, options={"channels": 16, "d": 16})
+BASE = dict(batch_size=32, sigma=6.0, patience=50)
+# The paper's TCN and recipe: small and quick, so these tests are about the training loop.
+CFG = dict(
+    BASE,
+    model="tcn",
+    options={"channels": 16, "d": 16, "embedding": "factorised", "head": "regression"},
+    loss="mse",
+    schedule="plateau",
+    warmup_epochs=0,
+    min_delta=1e-3,
+)
 
 
 def _quiet(*a):
@@ -240,7 +250,7 @@ def test_singles_draw_every_step_of_the_epochs_trajectories_once():
 def test_warmup_epochs_train_single_steps_without_early_stopping(tmp_path):
     tr, va = _sets()
     cfg = dict(
-        CFG, model="tn", patience=1, min_delta=0.99, options={"d": 16, "ff": 32, "hidden": 32, "cells": 8}
+        BASE, model="tn", patience=1, min_delta=0.99, options={"d": 16, "ff": 32, "hidden": 32, "cells": 8}
     )
     lines = []
     s = train(
@@ -266,7 +276,8 @@ def test_warmup_epochs_train_single_steps_without_early_stopping(tmp_path):
 
 def test_warmup_defaults_and_refusals():
     assert TrainConfig(model="tn").warmup_epochs > 0 and TrainConfig(model="tn").loss == "cells"
-    assert TrainConfig(model="lstm").warmup_epochs == 0
+    assert TrainConfig(model="lstm").warmup_epochs > 0 and TrainConfig(model="lstm").loss == "cells"
+    assert TrainConfig(model="tn-match").warmup_epochs == 0
     assert TrainConfig(model="tn", task="forecasting").warmup_epochs == 0
     for bad in (
         dict(model="tn-match", warmup_epochs=2),
@@ -275,7 +286,12 @@ def test_warmup_defaults_and_refusals():
         with pytest.raises(EstimationError, match="warm-up"):
             TrainConfig(**bad)
     with pytest.raises(EstimationError, match="cell head"):
-        Estimator(TrainConfig(model="lstm", loss="cells"), 4, 8, toy_sequence_set(4, 3).normaliser())
+        Estimator(
+            TrainConfig(model="lstm", loss="cells", options={"head": "regression"}),
+            4,
+            8,
+            toy_sequence_set(4, 3).normaliser(),
+        )
 
 
 def test_learning_rate_schedules():
@@ -288,7 +304,9 @@ def test_learning_rate_schedules():
     assert lrs[2] == pytest.approx(2e-3) and lrs[7] == pytest.approx(0.5e-3)
     assert all(a > b > 0 for a, b in zip(lrs[:3], lrs[1:4], strict=True))
     assert all(a > b > 0 for a, b in zip(lrs[4:9], lrs[5:], strict=True))
-    plateau = TrainConfig(model="lstm", epochs=10, warmup_epochs=2, lr=1e-3, warmup_lr=5e-3)
+    plateau = TrainConfig(
+        model="lstm", epochs=10, warmup_epochs=2, lr=1e-3, warmup_lr=5e-3, schedule="plateau"
+    )
     assert plateau.schedule == "plateau"
     # each phase's rate is set at its start (None: left as it is); the plateau scheduler steps only
     # after the warm-up

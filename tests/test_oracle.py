@@ -106,6 +106,30 @@ def test_oracle_beats_every_method_on_data_from_its_own_model(world):
     assert cost_table(ev).splitlines()[2].startswith("| oracle |")
 
 
+def test_oracle_forecast_beats_every_method_on_data_from_its_own_model(world):
+    te, va = world["test"], world["validation"]
+    t_obs, horizon = 4, LENGTH - 4
+    task = dict(task="forecasting", t_obs=t_obs, horizon=horizon)
+    cfg = TrainConfig(model="tn-match", sigma=6.0, options={"search": 32, "k": 8, "d": 16, "ff": 32}, **task)
+    untrained = NetworkMethod(Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va), "tn-match")
+    oracle = OracleMethod(world["oracle"](), **task)
+    ev = evaluate(
+        [method("knn-kalman", **task), untrained, oracle], {"test": te}, [6.0], va, log=lambda *_: None
+    )
+    err = {r["method"]: r["mean"] for r in ev.select(task="forecasting", kind="all")}
+    assert set(err) == {"oracle", "knn-kalman", "tn-match"}
+    assert err["oracle"] < 0.85 * min(err["knn-kalman"], err["tn-match"]), err
+    # the forecast is the tracked filter carried on: its first step is not the last tracked one
+    rows = np.flatnonzero(te.kind == KINDS.index("vehicle"))[:8]
+    bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))[rows]
+    ahead = oracle.for_sigma(6.0, va).predict_lengths(bits, [t_obs])[t_obs][0]
+    tracked = OracleMethod(world["oracle"]()).for_sigma(6.0, va).predict_lengths(bits, [t_obs])[t_obs][0]
+    assert ahead.shape == (8, horizon, 2) and tracked.shape == (8, t_obs, 2)
+    assert np.median(np.linalg.norm(ahead[:, 0] - tracked[:, -1], axis=-1)) > 1.0  # vehicles move on
+    with pytest.raises(EstimationError, match="forecasting with t_obs"):
+        OracleMethod(task="forecasting", t_obs=0, horizon=2)
+
+
 def test_prefix_estimates_see_only_their_steps_and_are_seeded(world):
     te = world["test"]
     bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))

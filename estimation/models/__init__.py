@@ -16,6 +16,7 @@ from torch import nn
 
 from ..errors import EstimationError
 from ..names import MODEL_NAMES, TASKS, ModelName, Task
+from .baseline import BASELINE_PAPER_OPTIONS, BaselineNet
 from .candidate_transformer import CandidateTransformer
 from .conv import Conv1DNet, TCNNet
 from .heads import CellHead, CellOutput, RegressionHead, positions
@@ -30,7 +31,7 @@ TN_RECIPE: dict[str, Any] = {
     "schedule": "cosine",
     "min_delta": 0.0,
 }
-"""How ``tn`` trains by default (README, "Why the paper's transformer was at 7.5 m"): its cell
+"""How ``tn`` and the baselines (which share its embedding and head) train by default (README, "Why the paper's transformer was at 7.5 m"): its cell
 head's loss; 24 warm-up epochs on single fingerprints at a learning rate of 3e-3, then sequences
 at 3e-4 (at 1e-3 the attention's first steps throw the trained embedding about), each phase on
 its own cosine down to zero, by epoch 200 in all; early stopping counts any
@@ -38,6 +39,8 @@ new best as an improvement, however small (the loss falls slowly to the end of a
 epochs of 2048 trajectories that is about 30 minutes on 2 cores (1771 s for 197 epochs)."""
 
 __all__ = [
+    "BASELINE_PAPER_OPTIONS",
+    "BaselineNet",
     "MODELS",
     "CandidateTransformer",
     "CellHead",
@@ -105,11 +108,11 @@ MODELS: dict[str, ModelSpec] = {
     for spec in (
         ModelSpec("tn", _sequence_net(TransformerNet), recipe=TN_RECIPE),
         ModelSpec("tn-match", _candidate_net, reads_grid=True, recipe={"loss": "rmse"}),
-        ModelSpec("lstm", _sequence_net(RecurrentNet, "lstm")),
-        ModelSpec("gru", _sequence_net(RecurrentNet, "gru")),
-        ModelSpec("rnn", _sequence_net(RecurrentNet, "rnn")),
-        ModelSpec("tcn", _sequence_net(TCNNet)),
-        ModelSpec("conv1d", _sequence_net(Conv1DNet)),
+        ModelSpec("lstm", _sequence_net(RecurrentNet, "lstm"), recipe=TN_RECIPE),
+        ModelSpec("gru", _sequence_net(RecurrentNet, "gru"), recipe=TN_RECIPE),
+        ModelSpec("rnn", _sequence_net(RecurrentNet, "rnn"), recipe=TN_RECIPE),
+        ModelSpec("tcn", _sequence_net(TCNNet), recipe=TN_RECIPE),
+        ModelSpec("conv1d", _sequence_net(Conv1DNet), recipe=TN_RECIPE),
     )
 }
 """Every trainable network by name, in the order of :data:`estimation.names.MODEL_NAMES`."""

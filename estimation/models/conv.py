@@ -6,8 +6,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from .embedding import FingerprintEmbedding
-from .heads import RegressionHead
+from .baseline import BaselineNet
 
 __all__ = ["TCNNet", "Conv1DNet"]
 
@@ -28,22 +27,22 @@ class _CausalBlock(nn.Module):
         return F.relu(x + h)
 
 
-class _SeqConvNet(nn.Module):
-    def __init__(self, n_beams, n_bins, task, horizon, d, channels, dropout, embed_k):
-        super().__init__()
-        self.task, self.horizon = task, horizon
-        self.embed = FingerprintEmbedding(n_beams, n_bins, d, k=embed_k, dropout=dropout)
-        self.inp = nn.Conv1d(d, channels, 1)
-        self.head = RegressionHead(channels, 2 if task == "tracking" else 2 * horizon, hidden=64)
+class _SeqConvNet(BaselineNet):
+    """A 1x1 convolution from the embedding to ``channels``, then the subclass's :meth:`convolve`."""
 
-    def body(self, x: torch.Tensor) -> torch.Tensor:  # (B, C, T) -> (B, C, T)
+    def __init__(
+        self, n_beams, n_bins, task, horizon, d, channels, dropout, embedding, hidden, embed_k, head, cells
+    ):
+        super().__init__(
+            n_beams, n_bins, task, horizon, d, channels, dropout, embedding, hidden, embed_k, head, cells
+        )
+        self.inp = nn.Conv1d(d, channels, 1)
+
+    def convolve(self, x: torch.Tensor) -> torch.Tensor:  # (B, C, T) -> (B, C, T)
         raise NotImplementedError
 
-    def forward(self, bits: torch.Tensor, y_prev: torch.Tensor | None = None) -> torch.Tensor:
-        h = self.body(self.inp(self.embed(bits).transpose(1, 2))).transpose(1, 2)  # (B, T, C)
-        if self.task == "tracking":
-            return self.head(h)
-        return self.head(h[:, -1]).view(len(bits), self.horizon, 2)
+    def body(self, x: torch.Tensor) -> torch.Tensor:
+        return self.convolve(self.inp(x.transpose(1, 2))).transpose(1, 2)
 
 
 class TCNNet(_SeqConvNet):
@@ -55,17 +54,23 @@ class TCNNet(_SeqConvNet):
         n_bins: int,
         task: str = "tracking",
         horizon: int = 1,
-        d: int = 64,
+        d: int = 128,
         channels: int = 128,
         kernel: int = 3,
         dilations: tuple[int, ...] = (1, 2, 4),
         dropout: float = 0.01,
+        embedding: str = "bag",
+        hidden: int = 1024,
         embed_k: int = 16,
+        head: str = "cells",
+        cells: int = 80,
     ):
-        super().__init__(n_beams, n_bins, task, horizon, d, channels, dropout, embed_k)
+        super().__init__(
+            n_beams, n_bins, task, horizon, d, channels, dropout, embedding, hidden, embed_k, head, cells
+        )
         self.blocks = nn.Sequential(*[_CausalBlock(channels, kernel, q, dropout) for q in dilations])
 
-    def body(self, x):
+    def convolve(self, x):
         return self.blocks(x)
 
 
@@ -78,13 +83,19 @@ class Conv1DNet(_SeqConvNet):
         n_bins: int,
         task: str = "tracking",
         horizon: int = 1,
-        d: int = 64,
+        d: int = 128,
         channels: int = 64,
         kernel: int = 3,
         dropout: float = 0.01,
+        embedding: str = "bag",
+        hidden: int = 1024,
         embed_k: int = 16,
+        head: str = "cells",
+        cells: int = 80,
     ):
-        super().__init__(n_beams, n_bins, task, horizon, d, channels, dropout, embed_k)
+        super().__init__(
+            n_beams, n_bins, task, horizon, d, channels, dropout, embedding, hidden, embed_k, head, cells
+        )
         self.convs = nn.Sequential(
             nn.Conv1d(channels, channels, kernel, padding="same"),
             nn.ReLU(),
@@ -93,5 +104,5 @@ class Conv1DNet(_SeqConvNet):
             nn.ReLU(),
         )
 
-    def body(self, x):
+    def convolve(self, x):
         return self.convs(x)

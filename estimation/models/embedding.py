@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["BagEmbedding", "FingerprintEmbedding", "sinusoidal_encoding"]
+__all__ = ["BagEmbedding", "FingerprintEmbedding", "make_embedding", "sinusoidal_encoding"]
 
 
 class FingerprintEmbedding(nn.Module):
@@ -61,6 +61,21 @@ class BagEmbedding(nn.Module):
         h = F.embedding_bag(which[:, 1], self.rows, offsets, mode="sum", per_sample_weights=weights)
         h = self.drop(F.relu(h + self.bias))
         return self.norm(self.out(h)).reshape(*lead, -1)
+
+
+EMBEDDINGS = ("bag", "factorised")
+
+
+def make_embedding(
+    kind: str, n_beams: int, n_bins: int, d: int, hidden: int = 1024, k: int = 16, dropout: float = 0.01
+) -> nn.Module:
+    """A fingerprint embedding by name: ``"bag"`` (:class:`BagEmbedding`, ``hidden`` units) or
+    ``"factorised"`` (:class:`FingerprintEmbedding`, ``k`` delay filters)."""
+    if kind == "bag":
+        return BagEmbedding(n_beams, n_bins, d, hidden=hidden, dropout=dropout)
+    if kind == "factorised":
+        return FingerprintEmbedding(n_beams, n_bins, d, k=k, dropout=dropout)
+    raise ValueError(f"unknown embedding {kind!r} (choose from {', '.join(EMBEDDINGS)})")
 
 
 def sinusoidal_encoding(positions: torch.Tensor, d: int) -> torch.Tensor:

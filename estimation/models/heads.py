@@ -7,7 +7,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-__all__ = ["CellHead", "CellOutput", "RegressionHead", "positions"]
+__all__ = ["CellHead", "CellOutput", "RegressionHead", "make_head", "positions"]
 
 
 class RegressionHead(nn.Sequential):
@@ -107,3 +107,16 @@ class CellHead(nn.Module):
         miss2 = (out.position.reshape(-1, 2) - t).square().sum(-1) / self.w**2
         position = torch.where(miss2 < 1.0, miss2, 2.0 * miss2.clamp(min=1.0).sqrt() - 1.0)
         return (cross_entropy + position).sum(), len(t)
+
+
+HEADS = ("cells", "regression")
+
+
+def make_head(kind: str, d: int, cells: int = 80, hidden: int | None = None) -> nn.Module:
+    """A position head by name: ``"cells"`` (:class:`CellHead` of ``cells x cells``) or
+    ``"regression"`` (:class:`RegressionHead` ``d -> hidden -> 2``, ``hidden`` defaulting to ``d``)."""
+    if kind == "cells":
+        return CellHead(d, cells)
+    if kind == "regression":
+        return RegressionHead(d, 2, hidden=hidden or d)
+    raise ValueError(f"unknown head {kind!r} (choose from {', '.join(HEADS)})")

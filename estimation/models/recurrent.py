@@ -5,19 +5,18 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .embedding import FingerprintEmbedding
-from .heads import RegressionHead
+from .baseline import BaselineNet
 
 __all__ = ["RecurrentNet"]
 
 _CELLS = {"lstm": nn.LSTM, "gru": nn.GRU, "rnn": nn.RNN}
 
 
-class RecurrentNet(nn.Module):
-    """Embedding, two stacked recurrent layers of ``units`` (the paper's 256, 64), then a 2-layer MLP.
+class RecurrentNet(BaselineNet):
+    """Two stacked recurrent layers of ``units`` (the paper's 256, 64) between the shared embedding
+    and head (:class:`~estimation.models.baseline.BaselineNet`); causal.
 
-    Tracking: one position per step from the last layer's output at that step (causal).
-    Forecasting: all ``horizon`` positions from the last layer's output at the last observed step.
+    ``cell``: ``"lstm"``, ``"gru"`` or ``"rnn"``.
     """
 
     def __init__(
@@ -27,23 +26,24 @@ class RecurrentNet(nn.Module):
         n_bins: int,
         task: str = "tracking",
         horizon: int = 1,
-        d: int = 64,
+        d: int = 128,
         units: tuple[int, int] = (256, 64),
         dropout: float = 0.01,
+        embedding: str = "bag",
+        hidden: int = 1024,
         embed_k: int = 16,
+        head: str = "cells",
+        cells: int = 80,
     ):
-        super().__init__()
-        self.task, self.horizon = task, horizon
-        self.embed = FingerprintEmbedding(n_beams, n_bins, d, k=embed_k, dropout=dropout)
+        super().__init__(
+            n_beams, n_bins, task, horizon, d, units[1], dropout, embedding, hidden, embed_k, head, cells
+        )
         rnn = _CELLS[cell]
         self.rnn1 = rnn(d, units[0], batch_first=True)
         self.rnn2 = rnn(units[0], units[1], batch_first=True)
         self.drop = nn.Dropout(dropout)
-        self.head = RegressionHead(units[1], 2 if task == "tracking" else 2 * horizon, hidden=64)
 
-    def forward(self, bits: torch.Tensor, y_prev: torch.Tensor | None = None) -> torch.Tensor:
-        h, _ = self.rnn1(self.embed(bits))
+    def body(self, x: torch.Tensor) -> torch.Tensor:
+        h, _ = self.rnn1(x)
         h, _ = self.rnn2(self.drop(h))
-        if self.task == "tracking":
-            return self.head(h)
-        return self.head(h[:, -1]).view(len(bits), self.horizon, 2)
+        return h

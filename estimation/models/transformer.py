@@ -8,8 +8,8 @@ from typing import Any
 import torch
 from torch import nn
 
-from .embedding import BagEmbedding, FingerprintEmbedding, sinusoidal_encoding
-from .heads import CellHead, CellOutput, RegressionHead, positions
+from .embedding import make_embedding, sinusoidal_encoding
+from .heads import CellOutput, make_head, positions
 
 __all__ = ["PAPER_OPTIONS", "TransformerNet"]
 
@@ -96,10 +96,7 @@ class TransformerNet(nn.Module):
                 raise ValueError(f"unknown {name} {value!r} (choose from {', '.join(allowed)})")
         self.task, self.horizon, self.d, self.decoder_kind = task, horizon, d, decoder
         self.positions = positions
-        if embedding == "bag":
-            self.embed = BagEmbedding(n_beams, n_bins, d, hidden=hidden, dropout=dropout)
-        else:
-            self.embed = FingerprintEmbedding(n_beams, n_bins, d, k=embed_k, dropout=dropout)
+        self.embed = make_embedding(embedding, n_beams, n_bins, d, hidden, embed_k, dropout)
         with warnings.catch_warnings():  # pre-norm merely disables a fast path it warns about
             warnings.filterwarnings("ignore", message="enable_nested_tensor is True")
             self.encoder = nn.TransformerEncoder(
@@ -129,7 +126,7 @@ class TransformerNet(nn.Module):
         self.future = nn.Parameter(torch.zeros(horizon, d)) if task == "forecasting" else None
         # pre-norm layers leave their output unnormalised
         self.final_norm = nn.LayerNorm(d) if norm_first else nn.Identity()
-        self.head = CellHead(d, cells) if head == "cells" else RegressionHead(d, 2, hidden=d)
+        self.head = make_head(head, d, cells)
 
     def _encoding(self, steps: torch.Tensor) -> torch.Tensor:
         if self.step is None:

@@ -70,10 +70,12 @@ def register(sub) -> None:
         "--task",
         choices=TASKS,
         default="tracking",
-        help="task of the knn-kalman baseline (networks use their own; default tracking)",
+        help="task of the classical trackers knn-kalman and oracle (networks use their own; default tracking)",
     )
-    p.add_argument("--t-obs", type=int, default=5, help="knn-kalman forecasting: observed steps")
-    p.add_argument("--horizon", type=int, default=2, help="knn-kalman forecasting: predicted steps")
+    p.add_argument("--t-obs", type=int, default=5, help="knn-kalman and oracle forecasting: observed steps")
+    p.add_argument(
+        "--horizon", type=int, default=2, help="knn-kalman and oracle forecasting: predicted steps"
+    )
     p.add_argument("--out", default="evaluation", help="report folder (default ./evaluation)")
     p.add_argument("--rrd", help="write predicted vs true trajectories to this .rrd")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation noise (default 0)")

@@ -31,7 +31,7 @@ def register(sub) -> None:
     p.add_argument(
         "--epochs",
         type=int,
-        help="maximum epochs, warm-up included (default: the model's own, 200 for tn, else 100; early "
+        help="maximum epochs, warm-up included (default: the model's own, 200 for the sequence networks, 100 for tn-match; early "
         "stopping may end sooner)",
     )
     p.add_argument("--resume", action="store_true", help="continue from RUN/checkpoint.pt")
@@ -50,20 +50,22 @@ def register(sub) -> None:
     p.add_argument("--t-obs", type=int, default=5, help="forecasting: observed steps (default 5)")
     p.add_argument("--horizon", type=int, default=2, help="forecasting: predicted steps (default 2)")
     p.add_argument("--batch-size", type=int, default=64)
-    p.add_argument("--lr", type=float, help="learning rate (default: 3e-4 for tn, else 1e-3)")
+    p.add_argument(
+        "--lr", type=float, help="learning rate (default: 3e-4 for the sequence networks, 1e-3 for tn-match)"
+    )
     p.add_argument("--warmup-lr", type=float, help="learning rate of the warm-up epochs (default 3e-3)")
     p.add_argument(
         "--schedule",
         choices=SCHEDULES,
         help="learning rate: plateau (halved after 3 epochs without improvement) or cosine "
-        "(each phase down to zero by its last epoch); default cosine for tn, else plateau",
+        "(each phase down to zero by its last epoch); default cosine for the sequence networks, plateau for tn-match",
     )
     p.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
     p.add_argument(
         "--min-delta",
         type=float,
-        help="relative fall of the validation loss that counts as an improvement (default: 0 for tn, "
-        "else 1e-3)",
+        help="relative fall of the validation loss that counts as an improvement (default: 0 for the "
+        "sequence networks, 1e-3 for tn-match)",
     )
     p.add_argument(
         "--epoch-size",
@@ -75,13 +77,14 @@ def register(sub) -> None:
         "--warmup-epochs",
         type=int,
         help="tracking: epochs of single fingerprints (every step of the epoch's trajectories on its "
-        "own) before sequences (default: the model's own, 24 for tn, 0 for the others)",
+        "own) before sequences (default: the model's own, 24 of 200 for the sequence networks, "
+        "0 for tn-match)",
     )
     p.add_argument(
         "--loss",
         choices=LOSSES,
         help="mse (the paper's), rmse (mean per-trajectory RMSE) or cells (a cell head's own); "
-        "default cells for tn, rmse for tn-match, else mse",
+        "default rmse for tn-match, else cells",
     )
     p.add_argument(
         "--option",

@@ -463,8 +463,8 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
         f"(epochs of {protocol['epoch_size']} drawn afresh, fingerprints with fresh {protocol['sigma']:g} dB "
         f"noise) with early stopping on the loss over the same {protocol['n_validation']} validation "
         f"trajectories (patience {protocol['patience']} epochs, at most {protocol['max_epochs']} epochs; a model "
-        "whose recipe decays its learning rate to zero by a set epoch, `tn`, has that schedule shortened to "
-        f"fit the budget) and a wall-clock budget of {budget} per model: no epoch starts after it. The weights of the best "
+        "whose recipe decays its learning rate to zero by a set epoch (`tn` and the baselines, which share "
+        "its recipe) has that schedule shortened in proportion to the budget) and a wall-clock budget of {budget} per model: no epoch starts after it. The weights of the best "
         "validation epoch are evaluated. All methods see the same noisy fingerprints per split and noise "
         "level. Mean per-trajectory RMSE (m); *seen*: test trajectories outside the spatial hold-out "
         "region, *held-out*: those touching it.\n",

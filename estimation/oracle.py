@@ -837,8 +837,11 @@ class Oracle:
             raise EstimationError(f"oracle: prefix lengths {lengths} must lie within 1..{T}")
         if np.isnan(lik).any():
             raise EstimationError("oracle: log-likelihoods contain NaN")
-        if horizon < 0:
-            raise EstimationError(f"oracle: horizon must be >= 0 (got {horizon})")
+        if horizon < 0 or (horizon and lengths[-1] != T):
+            raise EstimationError(
+                f"oracle: horizon {horizon} must be >= 0, and a forecast needs the whole prefix {T} "
+                "among the lengths"
+            )
         ests, evid = {}, {}
         for code, kind in enumerate(KINDS):
             if kind not in self.kinds:

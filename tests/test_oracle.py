@@ -174,6 +174,8 @@ def test_bad_input_raises_estimation_error(world):
         oracle.smooth(np.zeros((2, 3, 5)), [3])
     with pytest.raises(EstimationError, match="prefix lengths"):
         oracle.smooth(np.zeros((2, 3, oracle.grid.size)), [4])
+    with pytest.raises(EstimationError, match="horizon"):
+        oracle.smooth(np.zeros((2, 3, oracle.grid.size)), [2], horizon=2)
     with pytest.raises(EstimationError, match="NaN"):
         oracle.smooth(np.full((2, 3, oracle.grid.size), np.nan), [3])
     with pytest.raises(EstimationError, match="counts"):

@@ -314,7 +314,7 @@ class Estimator(nn.Module):
         target = self.normaliser.to_unit(y)
         if isinstance(out, CellOutput):
             if self.config.loss == "cells":
-                return self.net.loss(out, target)
+                return self.net.head.loss(out, target)  # checked at construction: a CellHead
             out = out.position
         d = out - target
         if self.config.loss == "rmse":

@@ -70,7 +70,3 @@ class BaselineNet(nn.Module):
         if self.ahead is not None:
             h = self.ahead(h[:, -1]).view(len(bits), self.horizon, self.width)
         return self.head(h)
-
-    def loss(self, out: CellOutput, target: torch.Tensor) -> tuple[torch.Tensor, int]:
-        """The cell head's training loss (see :meth:`~estimation.models.heads.CellHead.loss`)."""
-        return self.head.loss(out, target)

@@ -63,19 +63,23 @@ class BagEmbedding(nn.Module):
         return self.norm(self.out(h)).reshape(*lead, -1)
 
 
-EMBEDDINGS = ("bag", "factorised")
+EMBEDDINGS = {
+    "bag": lambda n_beams, n_bins, d, hidden, k, dropout: BagEmbedding(n_beams, n_bins, d, hidden, dropout),
+    "factorised": lambda n_beams, n_bins, d, hidden, k, dropout: FingerprintEmbedding(
+        n_beams, n_bins, d, k, dropout
+    ),
+}
+"""Fingerprint embeddings by name: ``build(n_beams, n_bins, d, hidden, k, dropout)``."""
 
 
 def make_embedding(
     kind: str, n_beams: int, n_bins: int, d: int, hidden: int = 1024, k: int = 16, dropout: float = 0.01
 ) -> nn.Module:
-    """A fingerprint embedding by name: ``"bag"`` (:class:`BagEmbedding`, ``hidden`` units) or
-    ``"factorised"`` (:class:`FingerprintEmbedding`, ``k`` delay filters)."""
-    if kind == "bag":
-        return BagEmbedding(n_beams, n_bins, d, hidden=hidden, dropout=dropout)
-    if kind == "factorised":
-        return FingerprintEmbedding(n_beams, n_bins, d, k=k, dropout=dropout)
-    raise ValueError(f"unknown embedding {kind!r} (choose from {', '.join(EMBEDDINGS)})")
+    """A fingerprint embedding by name (:data:`EMBEDDINGS`): ``"bag"`` (:class:`BagEmbedding`,
+    ``hidden`` units) or ``"factorised"`` (:class:`FingerprintEmbedding`, ``k`` delay filters)."""
+    if kind not in EMBEDDINGS:
+        raise ValueError(f"unknown embedding {kind!r} (choose from {', '.join(EMBEDDINGS)})")
+    return EMBEDDINGS[kind](n_beams, n_bins, d, hidden, k, dropout)
 
 
 def sinusoidal_encoding(positions: torch.Tensor, d: int) -> torch.Tensor:

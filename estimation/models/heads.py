@@ -109,14 +109,16 @@ class CellHead(nn.Module):
         return (cross_entropy + position).sum(), len(t)
 
 
-HEADS = ("cells", "regression")
+HEADS = {
+    "cells": lambda d, cells, hidden: CellHead(d, cells),
+    "regression": lambda d, cells, hidden: RegressionHead(d, 2, hidden=hidden or d),
+}
+"""Position heads by name: ``build(d, cells, hidden)``."""
 
 
 def make_head(kind: str, d: int, cells: int = 80, hidden: int | None = None) -> nn.Module:
-    """A position head by name: ``"cells"`` (:class:`CellHead` of ``cells x cells``) or
-    ``"regression"`` (:class:`RegressionHead` ``d -> hidden -> 2``, ``hidden`` defaulting to ``d``)."""
-    if kind == "cells":
-        return CellHead(d, cells)
-    if kind == "regression":
-        return RegressionHead(d, 2, hidden=hidden or d)
-    raise ValueError(f"unknown head {kind!r} (choose from {', '.join(HEADS)})")
+    """A position head by name (:data:`HEADS`): ``"cells"`` (:class:`CellHead` of ``cells x cells``)
+    or ``"regression"`` (:class:`RegressionHead` ``d -> hidden -> 2``, ``hidden`` defaulting to ``d``)."""
+    if kind not in HEADS:
+        raise ValueError(f"unknown head {kind!r} (choose from {', '.join(HEADS)})")
+    return HEADS[kind](d, cells, hidden)

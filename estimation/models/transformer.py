@@ -8,8 +8,8 @@ from typing import Any
 import torch
 from torch import nn
 
-from .embedding import make_embedding, sinusoidal_encoding
-from .heads import CellOutput, make_head, positions
+from .embedding import EMBEDDINGS, make_embedding, sinusoidal_encoding
+from .heads import HEADS, CellOutput, make_head, positions
 
 __all__ = ["PAPER_OPTIONS", "TransformerNet"]
 
@@ -87,8 +87,8 @@ class TransformerNet(nn.Module):
     ):
         super().__init__()
         for name, value, allowed in (
-            ("embedding", embedding, ("bag", "factorised")),
-            ("head", head, ("cells", "regression")),
+            ("embedding", embedding, EMBEDDINGS),
+            ("head", head, HEADS),
             ("decoder", decoder, ("none", "parallel", "autoregressive")),
             ("positions", positions, ("learned", "sinusoidal")),
         ):
@@ -178,10 +178,6 @@ class TransformerNet(nn.Module):
         if isinstance(out[0], CellOutput):
             return CellOutput(*(torch.cat(parts, 1) for parts in zip(*out, strict=True)))
         return torch.cat(out, 1)
-
-    def loss(self, out: CellOutput, target: torch.Tensor) -> tuple[torch.Tensor, int]:
-        """The cell head's training loss (see :meth:`CellHead.loss`)."""
-        return self.head.loss(out, target)
 
     def sequence_parameters(self) -> list[nn.Parameter]:
         """What reads across steps (attention layers, step and future embeddings, the decoder): held

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -85,6 +86,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--patience", type=int, default=8, help="early-stopping patience, epochs (default 8)")
     ap.add_argument(
         "--max-epochs", type=int, default=1000, help="epoch cap (default 1000: budget and patience decide)"
+    )
+    ap.add_argument(
+        "--calibrate",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="size each cosine recipe on a timed probe epoch so that it ends within the budget "
+        "(default: scale it by budget / 30 minutes, which the budget may cut short; at 8 minutes "
+        "that trained better, README)",
     )
     ap.add_argument(
         "--classical",
@@ -200,6 +209,7 @@ def _main(args) -> int:
         "patience": args.patience,
         "max_epochs": args.max_epochs,
         "budget_minutes": args.budget_minutes,
+        **({"calibrate": True} if args.calibrate else {}),  # folders from before the option stay valid
         "sigma": args.sigma,
         "seed": args.seed,
         # forecasting: observed and predicted steps (the training defaults, used by every method)
@@ -254,28 +264,28 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
     for i, (model, task) in enumerate(jobs, 1):
         name = f"{model}-{task}"
         head = f"[train {i}/{len(jobs)}] {name}"
-        try:
-            cfg = TrainConfig(
-                model=model,
-                task=task,
-                sigma=args.sigma,
-                **budget_settings(model, args.budget_minutes, cap=args.max_epochs),
-                patience=args.patience,
-                epoch_size=protocol["epoch_size"],
-                seed=args.seed,
-            )
-        except EstimationError as e:
-            log(f"{head}: skipped ({e})")
-            continue
         run, marker = out / "runs" / name, out / "cache" / f"train-{name}.json"
         done = _read_json(marker)
         if done and (run / "model.pt").exists():
             log(f"{head}: finished before ({_describe(done)}), skipped")
             runs[name] = run
             continue
-        spent = _spent(run)
-        left = max(budget - spent, 0.0)
-        log(f"{head}: {f'resuming after {spent:.1f} s' if spent else 'training'}, {left:.0f} s left")
+        try:
+            base = dict(
+                model=model, task=task, sigma=args.sigma, patience=args.patience,
+                epoch_size=protocol["epoch_size"], seed=args.seed,
+            )  # fmt: skip
+            if args.calibrate:
+                settings, probe = _calibrated(base, budget, args.max_epochs, sets, out, name, head)
+            else:
+                settings, probe = budget_settings(model, args.budget_minutes, cap=args.max_epochs), 0.0
+            cfg = TrainConfig(**base, **settings)
+        except EstimationError as e:
+            log(f"{head}: skipped ({e})")
+            continue
+        trained = _spent(run)
+        left = max(budget - trained - probe, 0.0)
+        log(f"{head}: {f'resuming after {trained:.1f} s' if trained else 'training'}, {left:.0f} s left")
         summary = _train_one(sets, cfg, run, info, protocol, left)
         if summary["epochs"] == 0 or not (run / "model.pt").exists():
             log(f"{head}: no epoch finished within the budget; left out")
@@ -287,15 +297,64 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
     return runs
 
 
-def _spent(run: Path) -> float:
-    """Training seconds of the epochs a run's checkpoint holds (0 without one)."""
+def _calibrated(
+    base: dict, budget: float, cap: int, sets, out: Path, name: str, head: str
+) -> tuple[dict, float]:
+    """TrainConfig settings that fit a cosine recipe into ``budget`` seconds on this machine, and the
+    seconds their probe took.
+
+    A cosine schedule decays to zero by its last epoch, so a run the budget cuts short never
+    reaches its low learning rates: the epochs must be sized on what an epoch of this model and
+    task costs. A probe trains one warm-up epoch (when the recipe has a warm-up) and one sequence
+    epoch; the recipe gets as many epochs as the rest of the budget holds at those costs (95 % of
+    it, as epochs vary), at most its own and ``cap``. The probe's time counts against the budget.
+    The result is kept in DIR/cache, so a resumed run keeps its schedule. Models on the plateau
+    schedule get ``epochs = cap`` (the budget and early stopping end them).
+    """
+    from estimation import TrainConfig, train
+    from estimation.models import model_spec
+
+    recipe = model_spec(base["model"]).recipe
+    if recipe.get("schedule") != "cosine":
+        return {"epochs": cap}, 0.0
+    marker = out / "cache" / f"calibration-{name}.json"
+    saved = _read_json(marker)
+    if saved:
+        return {"epochs": int(saved["epochs"])}, float(sum(saved["probe_seconds"]))
+    warm = 1 if base["task"] == "tracking" and recipe.get("warmup_epochs") else 0
+    probe = TrainConfig(**base, epochs=warm + 1, warmup_epochs=warm)
+    where = out / "cache" / f"probe-{name}"
+    shutil.rmtree(where, ignore_errors=True)  # what a killed probe left
+    try:
+        train(
+            sets["train"], sets["validation"], probe, where, progress=False, record=False, log=lambda s: None
+        )
+        seconds = _history(where)
+    finally:
+        shutil.rmtree(where, ignore_errors=True)
+    share = recipe.get("warmup_epochs", 0) / recipe["epochs"] if warm else 0.0
+    per_epoch = share * seconds[0] + (1 - share) * seconds[-1]
+    left = 0.95 * budget - sum(seconds)
+    epochs = int(min(max(2, left // per_epoch), recipe["epochs"], cap))
+    _write_json(marker, {"epochs": epochs, "probe_seconds": seconds, "per_epoch": per_epoch})
+    log(f"{head}: probe epochs {', '.join(f'{t:.1f}' for t in seconds)} s -> {epochs} epochs in the budget")
+    return {"epochs": epochs}, float(sum(seconds))
+
+
+def _history(run: Path) -> list[float]:
+    """Seconds of every epoch a run's checkpoint holds."""
     from estimation.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
     from estimation.training import CHECKPOINT_FILE
 
     path = run / CHECKPOINT_FILE
     if not path.exists():
-        return 0.0
-    return float(sum(load_checkpoint(path, CHECKPOINT_FORMAT, ("history",))["history"]["seconds"]))
+        return []
+    return [float(t) for t in load_checkpoint(path, CHECKPOINT_FORMAT, ("history",))["history"]["seconds"]]
+
+
+def _spent(run: Path) -> float:
+    """Training seconds of the epochs a run's checkpoint holds (0 without one)."""
+    return float(sum(_history(run)))
 
 
 def _train_one(sets, cfg, run: Path, info, protocol, seconds: float) -> dict[str, Any]:

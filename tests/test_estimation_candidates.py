@@ -89,6 +89,9 @@ def _path_posterior_by_enumeration(xy, like, motion):
         logp += float(motion.log_first(x[1] - x[0]))
         for t in range(1, T - 1):
             logp += float(motion.log_accel(x[t] - x[t - 1], x[t + 1] - 2 * x[t] + x[t - 1]))
+        if isinstance(motion, MotionTable):  # each position given the step into it (out of it at 0)
+            logp += float(motion.log_place_ratio(x[1] - x[0], x[0]))
+            logp += sum(float(motion.log_place_ratio(x[t] - x[t - 1], x[t])) for t in range(1, T))
         for t, j in enumerate(path):
             marg[t, j] += math.exp(logp)
     return marg / marg.sum(1, keepdim=True)
@@ -105,8 +108,17 @@ def _straight_tracks(n=400, length=8, seed=0):
     return np.concatenate([np.zeros((n, 1, 2)), np.cumsum(steps, 1)], 1) + rng.uniform(0, 300, (n, 1, 2))
 
 
+def _laned():
+    """A motion table whose place table has fast users only in the band 1 < y < 3."""
+    tracks = _straight_tracks()
+    lane = np.stack([np.arange(8) * 3.0, np.full(8, 2.0)], -1)[None].repeat(50, 0)
+    return MotionTable().fit(tracks).fit_place(lane, (-1.0, -1.0), 1.0, (30, 8), speed=1.0, floor=0.2)
+
+
 @pytest.mark.parametrize(
-    "motion", [MixtureMotion(first_step_sigma=5.0), MotionTable().fit(_straight_tracks())]
+    "motion",
+    [MixtureMotion(first_step_sigma=5.0), MotionTable().fit(_straight_tracks()), _laned()],
+    ids=["mixture", "table", "table-with-place"],
 )
 def test_velocity_posterior_against_enumeration_of_all_paths(motion):
     g = torch.Generator().manual_seed(4)
@@ -138,6 +150,59 @@ def test_motion_table_is_a_density_in_the_frame_of_the_motion():
         MotionTable().fit(np.zeros((3, 2, 2)))
     with pytest.raises(ValueError, match="NaN"):
         MotionTable().fit(np.full((3, 4, 2), np.nan))
+
+
+def test_place_table_keeps_fast_users_in_their_lanes_and_leaves_slow_ones_alone():
+    # fast users (3 m/step) only along the lane y = 2; walkers (0.5 m/step) anywhere
+    lane = np.stack([np.arange(8) * 3.0, np.full(8, 2.0)], -1)[None].repeat(50, 0)
+    rng = np.random.default_rng(0)
+    walk = rng.uniform(0, 25, (200, 1, 2)) + np.cumsum(rng.normal(0, 0.35, (200, 8, 2)), 1)
+    tracks = np.concatenate([lane, np.clip(walk, 0, 25)])
+    table = MotionTable().fit(tracks)
+    assert not table.has_place
+    table.fit_place(tracks, (-0.5, -0.5), 1.0, (26, 26), speed=1.0, floor=0.25)
+    fast, slow = torch.tensor([3.0, 0.0]), torch.tensor([0.5, 0.0])
+    at = torch.tensor([[12.0, 2.0], [12.0, 10.0], [100.0, 2.0]])  # lane, off lane, outside (edge)
+    r = table.log_place_ratio(fast, at)
+    off = math.log(0.25 / 1.25)  # where no fast user went, inside the area or outside it
+    assert float(r[0]) > 1.5 and float(r[1]) == pytest.approx(off, abs=2e-3)
+    assert float(r[2]) == pytest.approx(off, abs=2e-3)
+    # the table covers the fast users' box only: a lane in a large area costs a small table
+    alone = MotionTable().fit_place(lane, (-0.5, -0.5), 1.0, (1000, 1000), speed=1.0, floor=0.25)
+    assert alone.log_place.numel() < 200
+    far = torch.tensor([[12.0, 2.0], [12.0, 900.0], [-50.0, 2.0]])
+    got = alone.log_place_ratio(fast, far)
+    assert float(got[0]) > off + 1 and torch.allclose(
+        got[1:].double(), torch.full((2,), off, dtype=torch.float64), atol=2e-3
+    )
+    assert torch.equal(table.log_place_ratio(slow, at), torch.zeros(3))
+    # two equally likely candidates per step, on the lane and 0.6 m beside it (the next cell)
+    xs = torch.arange(5, dtype=torch.float32)[:, None]
+    for step, lane_share in ((3.0, 0.9), (0.3, None)):
+        x = xs * step
+        xy = torch.stack(
+            [torch.cat([x, torch.full_like(x, 2.0)], 1), torch.cat([x, torch.full_like(x, 2.6)], 1)], 1
+        )
+        with_place = velocity_posterior(xy[None], torch.zeros(1, 5, 2), table).exp()[0, :, 0]
+        without = velocity_posterior(xy[None], torch.zeros(1, 5, 2), MotionTable().fit(tracks)).exp()[0, :, 0]
+        if lane_share is None:  # walkers: no preference
+            assert torch.allclose(with_place, without, atol=1e-6)
+        else:  # the motion alone hardly tells the lanes apart, the place table does
+            assert ((without - 0.5).abs() < 0.1).all() and (with_place > lane_share).all()
+    # the table travels with the state dict, whatever its size; a model saved before place tables
+    # existed loads with none
+    fresh = MotionTable()
+    fresh.load_state_dict(table.state_dict())
+    assert fresh.has_place and torch.equal(fresh.log_place, table.log_place)
+    old = {k: v for k, v in MotionTable().fit(tracks).state_dict().items() if "place" not in k}
+    legacy = MotionTable()
+    legacy.load_state_dict(old)
+    assert not legacy.has_place and torch.equal(legacy.log_place_ratio(fast, at), torch.zeros(3))
+    assert not table.drop_place().has_place
+    with pytest.raises(ValueError, match="shape"):
+        MotionTable().fit_place(np.zeros((3, 1, 2)), (0, 0), 1.0, (4, 4))
+    with pytest.raises(ValueError, match="NaN"):
+        MotionTable().fit_place(np.full((3, 4, 2), np.nan), (0, 0), 1.0, (4, 4))
 
 
 def test_velocity_posterior_follows_the_straight_line_a_random_walk_cannot_tell():
@@ -286,17 +351,21 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     per_step = est.matcher.match(bits)
     assert trajectory_rmse(pred, va.positions).mean() < trajectory_rmse(per_step, va.positions).mean()
     assert np.isfinite(pred).all()
-    # training measured the smoother's motion statistics and saved them with the weights
-    expect = MotionTable().fit(tr.grid_xy[tr.index])
-    assert bool(est.net.motion.fitted)
+    # training measured the smoother's motion statistics and place tables (32 x 32 grid of 1 m)
+    # and saved them with the weights
+    lo = tr.grid_xy.min(0)
+    expect = MotionTable().fit(tr.grid_xy[tr.index]).fit_place(tr.grid_xy[tr.index], lo - 0.5, 1.0, (32, 32))
+    assert bool(est.net.motion.fitted) and est.net.motion.has_place
     assert torch.equal(est.net.motion.log_accel_table, expect.log_accel_table)
+    assert torch.equal(est.net.motion.log_place, expect.log_place)
     xy, post, fine = est.inputs(bits[:4])
     assert torch.allclose(
         post[..., -1], velocity_posterior(xy, post[..., 0], expect).clamp(min=-30), atol=1e-5
     )
     # and the sub-cell table, on the training positions snapped to the lattice (toy grid: 1 m)
-    lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
-    assert float(est.net.grid_step) == 1.0
+    u = snap_to_lattice(tr.positions - lo)
+    lattice = MotionTable.lattice().fit(u).fit_place(u + lo, lo - 0.5, 1 / 3, (96, 96))
+    assert float(est.net.grid_step) == 1.0 and torch.equal(est.net.motion_fine.log_place, lattice.log_place)
     assert torch.equal(est.net.motion_fine.log_accel_table, lattice.log_accel_table)
     # the online filter splits the cells it finds likely so far and prunes pairs, so it is the
     # dense sub-cell smoother up to a few centimetres (exactly when nothing is pruned: test_online)

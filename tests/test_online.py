@@ -34,34 +34,43 @@ def _candidates(B=3, T=6, S=10, seed=1):
 
 
 MOTION = MotionTable().fit(_tracks())
+# The same with a place table of the fast users (speed 6 per step; the walkers at 1.4 are not in it).
+PLACED = (
+    MotionTable().fit(_tracks()).fit_place(_tracks(), (-60.0, -60.0), 2.0, (60, 60), speed=3.0, floor=0.3)
+)
 
 
-def test_unpruned_beam_is_the_dense_constant_velocity_smoother():
+@pytest.mark.parametrize("motion", [MOTION, PLACED], ids=["motion", "with-place"])
+def test_unpruned_beam_is_the_dense_constant_velocity_smoother(motion):
     xy, score = _candidates()
-    f = CandidateFilter(MOTION, k=10, beam=100).run(xy, score)  # 10 x 10 pairs: nothing pruned
+    f = CandidateFilter(motion, k=10, beam=100).run(xy, score)  # 10 x 10 pairs: nothing pruned
     kxy, post, _ = f.smooth()
-    dense = velocity_posterior(kxy.double(), post[..., 0].double(), MOTION)
+    dense = velocity_posterior(kxy.double(), post[..., 0].double(), motion)
     assert torch.allclose(post[..., -1].double(), dense.clamp(min=-30), atol=1e-4)
     # every prefix's smoothed marginals are the dense smoother's of that prefix
     for T in (1, 2, 3):
         kxy, post, _ = f.smooth(T)
-        dense = velocity_posterior(kxy.double(), post[..., 0].double(), MOTION)
+        dense = velocity_posterior(kxy.double(), post[..., 0].double(), motion)
         assert torch.allclose(post[..., -1].double(), dense.clamp(min=-30), atol=1e-4)
 
 
 @pytest.mark.parametrize("beam", [100, 12])
-def test_forward_filter_equals_the_smoothers_last_step_marginal(beam):
+@pytest.mark.parametrize("motion", [MOTION, PLACED], ids=["motion", "with-place"])
+def test_forward_filter_equals_the_smoothers_last_step_marginal(beam, motion):
     xy, score = _candidates(T=7)
-    f = CandidateFilter(MOTION, k=10, beam=beam)
+    f = CandidateFilter(motion, k=10, beam=beam)
     for t in range(7):
         f.update(xy[:, t], score[:, t])
         smoothed_last = f.cells.smooth(t + 1)[-1]
         np.testing.assert_allclose(np.exp(f.cells.marg[-1]), np.exp(smoothed_last), atol=1e-9)
 
 
-def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother():
+@pytest.mark.parametrize("place", [False, True], ids=["motion", "with-place"])
+def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
     tr = toy_sequence_set(64, 6, seed=0)
     lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
+    if place:
+        lattice.fit_place(snap_to_lattice(_tracks()), (-60.5, -60.5), 1 / 3, (363, 363), speed=3.0)
     xy, score = _candidates(B=2, T=4, S=4)
     xy = torch.round(xy)  # grid points of a 1 m grid
     f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36).run(xy, score)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import subprocess
 import sys
@@ -26,8 +27,9 @@ def paper_table():
     return module
 
 
-def _args(out: Path) -> list[str]:
+def _args(out: Path, calibrate: bool = False) -> list[str]:
     return [
+        *(["--calibrate"] if calibrate else []),
         TOY,
         "--out",
         str(out),
@@ -89,6 +91,26 @@ def test_paper_table_resumes_and_writes_the_table(paper_table, tmp_path, capsys)
     assert paper_table.main(_args(out) + ["--epoch-size", "16"]) == 2
     err = capsys.readouterr().err.strip()
     assert "another protocol" in err and "\n" not in err
+
+
+def test_paper_table_sizes_a_cosine_recipe_on_a_probe_epoch(paper_table, tmp_path, capsys):
+    out = tmp_path / "table"
+    args = _args(out, calibrate=True)
+    args[args.index("--budget-minutes") + 1] = "0.3"
+    args[args.index("--tasks") + 1 : args.index("--noises")] = ["tracking"]
+    args[args.index("--models") + 1 : args.index("--tasks")] = ["gru"]
+    assert paper_table.main(args) == 0
+    text = capsys.readouterr().out
+    assert "gru-tracking: probe epochs" in text
+    cal = json.loads((out / "cache" / "calibration-gru-tracking.json").read_text())
+    assert len(cal["probe_seconds"]) == 2  # a warm-up epoch and a sequence epoch
+    assert 2 <= cal["epochs"] <= 200
+    assert not list((out / "cache").glob("probe-*"))  # the probe's run is gone
+    info = json.loads((out / "runs" / "gru-tracking" / "run.json").read_text())
+    assert info["config"]["epochs"] == cal["epochs"]
+    # the probe's time counts against the budget: probe and training together stay within it
+    done = json.loads((out / "cache" / "train-gru-tracking.json").read_text())
+    assert sum(cal["probe_seconds"]) + done["train_seconds"] < 0.3 * 60 + max(cal["probe_seconds"]) + 5
 
 
 @pytest.mark.parametrize(

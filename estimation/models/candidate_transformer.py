@@ -32,7 +32,7 @@ from torch import nn
 
 from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
-from ..smoothing.motion import MotionTable, snap_to_lattice
+from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice
 from .embedding import sinusoidal_encoding
 
 __all__ = ["CandidateTransformer"]
@@ -84,7 +84,7 @@ class CandidateTransformer(nn.Module):
         self.logit = nn.Linear(d, 1)
         self.offset = nn.Linear(d, 2)
         self.gate = nn.Linear(d, 1)
-        # Measured on the training trajectories by estimation.train (motion.fit, fit_fine).
+        # Measured on the training trajectories by estimation.train (fit_motion).
         self.motion = MotionTable()
         self.motion_fine = MotionTable.lattice()
         self.register_buffer("grid_step", torch.tensor(1.0))
@@ -95,15 +95,40 @@ class CandidateTransformer(nn.Module):
             nn.init.zeros_(lin.weight)
             nn.init.zeros_(lin.bias)
 
-    def fit_fine(self, positions: np.ndarray, grid_xy: np.ndarray) -> CandidateTransformer:
-        """Measure the sub-cell smoother's motion table on training trajectories ``positions
-        (n, L >= 3, 2)`` metres, snapped to the lattice of :func:`subcell_mean` over the grid points
-        ``grid_xy (G, 2)`` metres. Returns ``self``."""
+    def fit_motion(
+        self,
+        positions: np.ndarray,
+        grid_xy: np.ndarray,
+        index: np.ndarray | None = None,
+        places: bool = True,
+    ) -> CandidateTransformer:
+        """Measure both smoothers' motion (and, with ``places``, place) tables on training
+        trajectories ``positions (n, L >= 3, 2)`` metres over the grid points ``grid_xy (G, 2)``
+        metres: the cell smoother's on the grid points ``grid_xy[index]`` the fingerprints were
+        drawn at (default the nearest grid point), the sub-cell smoother's on the positions snapped
+        to the lattice of :func:`subcell_mean`. Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
+        p = np.asarray(positions, dtype=np.float64)
         steps = np.diff(np.unique(grid_xy[:, 0]))
         spacing = float(steps.min()) if len(steps) else 1.0
-        u = (np.asarray(positions, dtype=np.float64) - grid_xy.min(0)) / spacing
-        self.motion_fine.fit(snap_to_lattice(u))
+        lo = grid_xy.min(0)
+        cells = np.rint((grid_xy.max(0) - lo) / spacing).astype(int) + 1  # grid points per axis
+        on_grid = lo + np.rint((p - lo) / spacing) * spacing if index is None else grid_xy[index]
+        self.motion.fit(on_grid)
+        u = snap_to_lattice((p - lo) / spacing)  # grid units from the first grid point
+        self.motion_fine.fit(u)
+        if places:
+            self.motion.fit_place(on_grid, lo - spacing / 2, spacing, tuple(cells))
+            self.motion_fine.fit_place(
+                u + lo / spacing,
+                lo / spacing - 0.5,
+                1.0 / SUBCELLS,
+                tuple(cells * SUBCELLS),
+                PLACE_SPEED / spacing,
+            )
+        else:
+            self.motion.drop_place()
+            self.motion_fine.drop_place()
         self.grid_step.fill_(spacing)
         return self
 

@@ -40,6 +40,7 @@ class MotionArrays(NamedTuple):
     accel_table: np.ndarray  # (n_band, n_acc, n_acc) log density of (along, across) acceleration
     bin: float
     reach: float
+    place: tuple  # (place_speed, log_place (H, W) float32, origin (2,), res); see MotionTable
 
 
 def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
@@ -47,12 +48,19 @@ def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
     :class:`MotionTable`'s bins first (its densities at the bin centres)."""
     if isinstance(motion, MixtureMotion):
         motion = _tabulate(motion)
+    place = (
+        float(motion.place_speed),
+        motion.log_place.float().numpy().copy(),
+        motion.place_origin.double().numpy().copy(),
+        float(motion.place_res),
+    )
     return MotionArrays(
         motion.log_step_table.double().numpy().copy(),
         motion.speed_edges.double().numpy().copy(),
         motion.log_accel_table.double().numpy().copy(),
         float(motion.bin),
         float(motion.reach),
+        place,
     )
 
 
@@ -95,6 +103,17 @@ def _log_accel(ux, uy, band, ax, ay, accel_table, bin_, reach):
     i = min(max(int((ax * ux + ay * uy + reach) / bin_), 0), last)
     j = min(max(int((ay * ux - ax * uy + reach) / bin_), 0), last)
     return accel_table[band, i, j]
+
+
+@njit(cache=True, inline="always")
+def _log_place(x, y, vx, vy, place):
+    # MotionTable.log_place_ratio: the place table at the cell holding x if v is fast, else 0.
+    speed, table, origin, res = place
+    if vx * vx + vy * vy <= speed * speed:
+        return 0.0
+    i = min(max(int(math.floor((x - origin[0]) / res)), 0), table.shape[0] - 1)
+    j = min(max(int(math.floor((y - origin[1]) / res)), 0), table.shape[1] - 1)
+    return table[i, j]
 
 
 @njit(cache=True, nogil=True)
@@ -184,16 +203,16 @@ def _marginal(la, group, K, out):
 
 
 @njit(cache=True, nogil=True)
-def pair_start(x0, x1, lp0, lp1, M, step_table, bin_):
-    """The first pair message: every ``(x_0, x_1)`` scored by both likelihoods and the first
-    displacement's density, the ``M`` best kept.
+def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
+    """The first pair message: every ``(x_0, x_1)`` scored by both likelihoods, the first
+    displacement's density and both places given that displacement, the ``M`` best kept.
 
     Parameters
     ----------
     x0, x1 : (B, K0, 2), (B, K1, 2) float64; candidates of steps 0 and 1
     lp0, lp1 : (B, K0), (B, K1) float64 log likelihoods
     M : int, beam width
-    step_table, bin_ : the motion's displacement table (:class:`MotionArrays`)
+    step_table, bin_, place : the motion's displacement and place tables (:class:`MotionArrays`)
 
     Returns
     -------
@@ -210,10 +229,13 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_):
     for b in range(B):
         for i in range(K0):
             for j in range(K1):
+                vx, vy = x1[b, j, 0] - x0[b, i, 0], x1[b, j, 1] - x0[b, i, 1]
                 dense[i, j] = (
                     lp0[b, i]
                     + lp1[b, j]
-                    + _log_first(x1[b, j, 0] - x0[b, i, 0], x1[b, j, 1] - x0[b, i, 1], step_table, bin_)
+                    + _log_first(vx, vy, step_table, bin_)
+                    + _log_place(x0[b, i, 0], x0[b, i, 1], vx, vy, place)
+                    + _log_place(x1[b, j, 0], x1[b, j, 1], vx, vy, place)
                 )
         _keep_best(dense, M, pi[b], ci[b], la[b])
         _marginal(la[b], ci[b], K1, marg[b])
@@ -221,7 +243,7 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_):
 
 
 @njit(cache=True, nogil=True)
-def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_, reach):
+def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_, reach, place):
     """One forward step of the beam: pairs ``(x_t-2, x_t-1)`` to pairs ``(x_t-1, x_t)``.
 
     Parameters
@@ -230,7 +252,7 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
     pi, ci, la : (B, M') the kept pairs of step t-1 (see :func:`pair_start`)
     lp : (B, K) float64; log likelihoods of step t
     M : int, beam width
-    speed_edges, accel_table, bin_, reach : the motion's acceleration tables
+    speed_edges, accel_table, bin_, reach, place : the motion's acceleration and place tables
 
     Returns
     -------
@@ -270,14 +292,22 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
         for i in range(Kp):
             for j in range(K):
                 d = dense[i, j]
-                dense[i, j] = math.log(d) + top + lp[b, j] if d > 0 else _NEG
+                if d > 0:
+                    vx, vy = xc[b, j, 0] - xp[b, i, 0], xc[b, j, 1] - xp[b, i, 1]
+                    dense[i, j] = (
+                        math.log(d) + top + lp[b, j] + _log_place(xc[b, j, 0], xc[b, j, 1], vx, vy, place)
+                    )
+                else:
+                    dense[i, j] = _NEG
         _keep_best(dense, M, npi[b], nci[b], nla[b])
         _marginal(nla[b], nci[b], K, marg[b])
     return npi, nci, nla, marg
 
 
 @njit(cache=True, nogil=True)
-def pair_backward(xpp, xp, xc, ppi, pci, pla, pi, ci, la, beta, lp, speed_edges, accel_table, bin_, reach):
+def pair_backward(
+    xpp, xp, xc, ppi, pci, pla, pi, ci, la, beta, lp, speed_edges, accel_table, bin_, reach, place
+):
     """One backward step: the backward messages of the kept pairs of step t-1 from those of step t.
 
     Parameters
@@ -320,9 +350,13 @@ def pair_backward(xpp, xp, xc, ppi, pci, pla, pi, ci, la, beta, lp, speed_edges,
                 if beta[b, m] <= _NEG:
                     continue
                 j = ci[b, m]
-                ax = xc[b, j, 0] - xp[b, a1, 0] - vx
-                ay = xc[b, j, 1] - xp[b, a1, 1] - vy
-                v = _log_accel(ux, uy, band, ax, ay, accel_table, bin_, reach) + lp[b, j] + beta[b, m]
+                wx, wy = xc[b, j, 0] - xp[b, a1, 0], xc[b, j, 1] - xp[b, a1, 1]
+                v = (
+                    _log_accel(ux, uy, band, wx - vx, wy - vy, accel_table, bin_, reach)
+                    + _log_place(xc[b, j, 0], xc[b, j, 1], wx, wy, place)
+                    + lp[b, j]
+                    + beta[b, m]
+                )
                 vals[c] = v
                 c += 1
                 top = max(top, v)

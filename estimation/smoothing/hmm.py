@@ -103,7 +103,8 @@ def velocity_posterior(
     Forward-backward over pairs of candidates of consecutive steps (the state holds position and
     velocity): the first displacement ``x_1 - x_0`` is scored by ``motion.log_first`` and every
     later change of displacement ``x_t+1 - 2 x_t + x_t-1`` by ``motion.log_accel`` given the
-    displacement before it. Costs ``O(T K^3)`` per sequence, so it runs on pruned candidates.
+    displacement before it; a :class:`MotionTable` with place tables also scores every position
+    by :meth:`~MotionTable.log_place_ratio` given the displacement into it (out of it at step 0). Costs ``O(T K^3)`` per sequence, so it runs on pruned candidates.
 
     Parameters
     ----------
@@ -121,12 +122,17 @@ def velocity_posterior(
     T = xy.shape[1]
     if T == 1:
         return torch.log_softmax(logp, dim=-1)
+    place = getattr(motion, "log_place_ratio", None)
     v = xy[:, 1, None] - xy[:, 0, :, None]  # (B, K_0, K_1, 2)
     pair = [logp[:, 0, :, None] + logp[:, 1, None, :] + motion.log_first(v)]
+    if place is not None:
+        pair[0] = pair[0] + place(v, xy[:, 0, :, None]) + place(v, xy[:, 1, None])
 
     def triple(t: int) -> torch.Tensor:  # (B, K_t-1, K_t, K_t+1) log transition
         v = xy[:, t, None, :, None] - xy[:, t - 1, :, None, None]  # (B, K_t-1, K_t, 1, 2)
-        return motion.log_accel(v, xy[:, t + 1, None, None] - xy[:, t, None, :, None] - v)
+        w = xy[:, t + 1, None, None] - xy[:, t, None, :, None]  # (B, 1, K_t, K_t+1, 2)
+        out = motion.log_accel(v, w - v)
+        return out if place is None else out + place(w, xy[:, t + 1, None, None])
 
     trans = [triple(t) for t in range(1, T - 1)]
     for t in range(1, T - 1):  # forward over states (x_t-1, x_t) -> (x_t, x_t+1)

@@ -10,7 +10,9 @@ step squared). Two models give those densities:
   the grid, as the candidates are) and of their accelerations in the frame of the motion, one per
   speed band. Speed tells a pedestrian from a vehicle, and the frame tells a speed change (along
   the motion) from a turn (across it), which a single isotropic mixture mixes up. ``tn-match``
-  fits one on its training split; it is saved with the network's weights.
+  fits one on its training split; it is saved with the network's weights. Its optional place
+  table (:meth:`MotionTable.fit_place`) adds where fast users were, a density ratio against
+  the flat one over the visited area, so vehicles stay in their lanes.
 
 Both take ``v`` and ``a`` as ``(..., 2)`` tensors in metres per step that broadcast against each
 other and return log densities per square metre of the same broadcast shape without the last axis.
@@ -24,7 +26,16 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["MixtureMotion", "MotionTable", "ACCELERATION", "FIRST_STEP_SIGMA", "SUBCELLS", "snap_to_lattice"]
+__all__ = [
+    "MixtureMotion",
+    "MotionTable",
+    "ACCELERATION",
+    "FIRST_STEP_SIGMA",
+    "PLACE_FLOOR",
+    "PLACE_SPEED",
+    "SUBCELLS",
+    "snap_to_lattice",
+]
 
 # Change of displacement between consecutive steps (m/step^2), as (weight, sigma) of a Gaussian
 # mixture: mostly steady motion with the grid's quantisation, sometimes a turn, stop or start.
@@ -32,6 +43,13 @@ __all__ = ["MixtureMotion", "MotionTable", "ACCELERATION", "FIRST_STEP_SIGMA", "
 ACCELERATION = ((0.9, 0.7), (0.1, 5.0))
 FIRST_STEP_SIGMA = 15.0  # metres; prior scale of the first displacement (up to vehicle speeds)
 SUBCELLS = 3  # lattice points per grid spacing and axis of the sub-cell smoother
+# Users faster than this (metres per step) get a place table: vehicles keep to lanes. Slower ones
+# go anywhere, and a measured table of where they were made pedestrians' and hybrids' error worse
+# (sampling noise and turns in, on the default data set), so they have none.
+PLACE_SPEED = 5.0
+# Weight of the flat density mixed into the measured one: a place no fast training user visited is
+# this much (relative) less likely than the average place, never impossible.
+PLACE_FLOOR = 3.0
 
 
 def snap_to_lattice(u: np.ndarray, n_sub: int = SUBCELLS) -> np.ndarray:
@@ -104,6 +122,108 @@ class MotionTable(nn.Module):
         r = (torch.arange(n_step) + 0.5) * bin
         self.register_buffer("log_step_table", -torch.log(2 * math.pi * r * max_step))
         self.register_buffer("fitted", torch.tensor(False))
+        # Place table (fit_place): log density ratio of fast users per table cell, float16 to keep
+        # the saved model small; a single zero cell until measured, i.e. no place preference.
+        self.register_buffer("place_speed", torch.tensor(math.inf, dtype=torch.float64))
+        self.register_buffer("log_place", torch.zeros(1, 1, dtype=torch.float16))
+        self.register_buffer("place_origin", torch.zeros(2, dtype=torch.float64))
+        self.register_buffer("place_res", torch.tensor(1.0, dtype=torch.float64))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The place table's shape depends on the area it was measured on; a model saved before
+        # place tables existed has none (no place preference).
+        for name in ("place_speed", "log_place", "place_origin", "place_res"):
+            key = prefix + name
+            if key in state_dict:
+                setattr(self, name, torch.empty_like(state_dict[key]))
+            else:
+                state_dict[key] = getattr(self, name)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def drop_place(self) -> MotionTable:
+        """Forget the place table (no place preference). Returns ``self``."""
+        self.place_speed = torch.tensor(math.inf, dtype=torch.float64)
+        self.log_place = torch.zeros(1, 1, dtype=torch.float16)
+        return self
+
+    @property
+    def has_place(self) -> bool:
+        """Whether :meth:`fit_place` measured a place table."""
+        return bool(torch.isfinite(self.place_speed))
+
+    def log_place_ratio(self, v: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Log density ratio of being at ``x (..., 2)`` after (or before) displacement ``v (..., 2)``
+        (same units as the table) -> ``(...)``: the place table's where ``v`` is faster than its
+        speed, else (and where none was measured) zero."""
+        shape = torch.broadcast_shapes(v.shape, x.shape)[:-1]
+        if not self.has_place:
+            return torch.zeros(shape, dtype=x.dtype)
+        ij = ((x - self.place_origin.to(x.dtype)) / self.place_res.to(x.dtype)).floor().long()
+        i = ij[..., 0].clamp(0, self.log_place.shape[0] - 1)
+        j = ij[..., 1].clamp(0, self.log_place.shape[1] - 1)
+        fast = v.norm(dim=-1) > self.place_speed.to(v.dtype)
+        return torch.where(fast, self.log_place[i, j].to(x.dtype), torch.zeros((), dtype=x.dtype)).expand(
+            shape
+        )
+
+    @torch.no_grad()
+    def fit_place(
+        self,
+        positions: np.ndarray,
+        origin: np.ndarray,
+        res: float,
+        shape: tuple[int, int],
+        speed: float = PLACE_SPEED,
+        floor: float = PLACE_FLOOR,
+        smooth: float = 0.5,
+    ) -> MotionTable:
+        """Measure where users faster than ``speed`` (per step, the table's units) are, on
+        trajectories ``positions (n, L >= 2, 2)`` snapped as the candidates are.
+
+        The table cells are ``[origin + i res, origin + (i + 1) res)`` per axis, ``shape`` of them.
+        A position's speed is that of its step in (the first one's, of its step out). The fast
+        users' histogram, smoothed by a Gaussian of ``smooth`` cells, becomes the density ratio
+        ``(h + floor u) / ((1 + floor) u)`` against their flat density ``u`` over the cells any
+        user visited: ``1 + h / u`` in lanes, ``floor / (1 + floor)`` where none went. Returns
+        ``self``.
+        """
+        from scipy.ndimage import gaussian_filter
+
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2 or not len(p):
+            raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError("positions hold NaN or infinite values")
+        H, W = (int(v) for v in shape)
+        if H < 1 or W < 1 or not res > 0 or not floor > 0 or not speed >= 0:
+            raise ValueError(
+                f"need a positive table shape, resolution and floor, got {shape}, {res}, {floor}"
+            )
+        step = np.linalg.norm(np.diff(p, axis=1), axis=-1)  # (n, L-1)
+        fast = np.concatenate([step[:, :1], step], axis=1).ravel() > speed
+        ij = np.floor((p.reshape(-1, 2) - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
+        cell = ij[:, 0] * W + ij[:, 1]
+        visited = max(int((np.bincount(cell[ok], minlength=H * W) > 0).sum()), 1)
+        h = gaussian_filter(
+            np.bincount(cell[ok & fast], minlength=H * W).reshape(H, W).astype(np.float64), smooth
+        )
+        u = max(h.sum() / visited, 1e-12)
+        # Kept only over the fast users' box and a border of cells where none went, which lookups
+        # outside the box clamp to: a city's lanes need not cost a table of the whole area.
+        rows, cols = np.flatnonzero((h > 1e-9 * u).any(1)), np.flatnonzero((h > 1e-9 * u).any(0))
+        i0, j0 = (rows[0] - 1, cols[0] - 1) if len(rows) else (0, 0)
+        i1, j1 = (rows[-1] + 2, cols[-1] + 2) if len(rows) else (1, 1)
+        box = np.zeros((i1 - i0, j1 - j0))
+        inner = h[max(i0, 0) : i1, max(j0, 0) : j1]
+        box[max(-i0, 0) : max(-i0, 0) + inner.shape[0], max(-j0, 0) : max(-j0, 0) + inner.shape[1]] = inner
+        box[[0, -1]], box[:, [0, -1]] = 0.0, 0.0
+        self.place_speed = torch.tensor(float(speed), dtype=torch.float64)
+        self.log_place = torch.from_numpy(np.log((box + floor * u) / ((1 + floor) * u))).to(torch.float16)
+        origin = np.asarray(origin, dtype=np.float64) + np.array([i0, j0]) * res
+        self.place_origin = torch.tensor(origin)
+        self.place_res = torch.tensor(float(res), dtype=torch.float64)
+        return self
 
     @classmethod
     def lattice(cls, n_sub: int = SUBCELLS) -> MotionTable:

@@ -73,12 +73,12 @@ class _Beam:
             pairs, marg = None, _log_softmax(lp)
         elif t == 1:
             *pairs, marg = _threaded(
-                pair_start, 4, self.xy[0], xy, self.lp[0], lp, self.beam, m.step_table, m.bin
+                pair_start, 4, self.xy[0], xy, self.lp[0], lp, self.beam, m.step_table, m.bin, m.place
             )
         else:
             *pairs, marg = _threaded(
                 pair_forward, 7, self.xy[-2], self.xy[-1], xy, *self.pairs[-1], lp,
-                self.beam, m.speed_edges, m.accel_table, m.bin, m.reach,
+                self.beam, m.speed_edges, m.accel_table, m.bin, m.reach, m.place,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
@@ -103,7 +103,7 @@ class _Beam:
                 break
             beta = _threaded(
                 pair_backward, 11, self.xy[t - 2], self.xy[t - 1], self.xy[t], *self.pairs[t - 1], pi, ci, la, beta, self.lp[t],
-                m.speed_edges, m.accel_table, m.bin, m.reach,
+                m.speed_edges, m.accel_table, m.bin, m.reach, m.place,
             )  # fmt: skip
         return out
 

@@ -6,8 +6,10 @@ model reads the data set's grid instead: for every step the exact fingerprint li
 (:class:`~estimation.matching.FingerprintMatcher`) proposes its ``K`` most likely grid points, and a
 transformer encoder attends over all candidates of all steps to pick the ones that form a plausible
 motion. Each step's estimate is a convex combination of that step's candidates, so the model only
-sees relative geometry and likelihoods: it is translation invariant and does not depend on where
-the training trajectories ran.
+sees relative geometry and likelihoods: the network is translation invariant and does not depend on
+where the training trajectories ran. One prior does: the motion tables' place table, where training
+users faster than :data:`~estimation.smoothing.motion.PLACE_SPEED` went (their lanes); elsewhere
+(a region no training vehicle entered) it is flat and the smoother is as translation invariant.
 
 Its features are the hidden-Markov posteriors (random walk, then constant velocity over the pruned
 candidates) as the online candidate filter gives them

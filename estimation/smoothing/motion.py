@@ -203,14 +203,17 @@ class MotionTable(nn.Module):
         fast = np.concatenate([step[:, :1], step], axis=1).ravel() > speed
         ij = np.floor((p.reshape(-1, 2) - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
         ok = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
-        cell = ij[:, 0] * W + ij[:, 1]
-        visited = max(int((np.bincount(cell[ok], minlength=H * W) > 0).sum()), 1)
-        h = gaussian_filter(
-            np.bincount(cell[ok & fast], minlength=H * W).reshape(H, W).astype(np.float64), smooth
-        )
+        visited = max(len(np.unique(ij[ok, 0] * W + ij[ok, 1])), 1)
+        # Histogram and smoothing over the fast users' box (and the smoothing's reach) only, and the
+        # table kept over the cells they reach plus a border where none went, which lookups outside
+        # clamp to: a city's lanes need not cost arrays of the whole area.
+        f = ij[ok & fast]
+        reach = int(np.ceil(4 * smooth)) + 1
+        r0, c0 = np.maximum(f.min(0) - reach, 0) if len(f) else (0, 0)
+        r1, c1 = np.minimum(f.max(0) + reach + 1, (H, W)) if len(f) else (1, 1)
+        counts = np.bincount((f[:, 0] - r0) * (c1 - c0) + f[:, 1] - c0, minlength=(r1 - r0) * (c1 - c0))
+        h = gaussian_filter(counts.reshape(r1 - r0, c1 - c0).astype(np.float64), smooth)
         u = max(h.sum() / visited, 1e-12)
-        # Kept only over the fast users' box and a border of cells where none went, which lookups
-        # outside the box clamp to: a city's lanes need not cost a table of the whole area.
         rows, cols = np.flatnonzero((h > 1e-9 * u).any(1)), np.flatnonzero((h > 1e-9 * u).any(0))
         i0, j0 = (rows[0] - 1, cols[0] - 1) if len(rows) else (0, 0)
         i1, j1 = (rows[-1] + 2, cols[-1] + 2) if len(rows) else (1, 1)
@@ -218,6 +221,7 @@ class MotionTable(nn.Module):
         inner = h[max(i0, 0) : i1, max(j0, 0) : j1]
         box[max(-i0, 0) : max(-i0, 0) + inner.shape[0], max(-j0, 0) : max(-j0, 0) + inner.shape[1]] = inner
         box[[0, -1]], box[:, [0, -1]] = 0.0, 0.0
+        i0, j0 = i0 + r0, j0 + c0
         self.place_speed = torch.tensor(float(speed), dtype=torch.float64)
         self.log_place = torch.from_numpy(np.log((box + floor * u) / ((1 + floor) * u))).to(torch.float16)
         origin = np.asarray(origin, dtype=np.float64) + np.array([i0, j0]) * res

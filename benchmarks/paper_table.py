@@ -7,7 +7,8 @@
 Every model (LSTM, GRU, RNN, TCN, Conv1D, tn, tn-match) is trained for each task under one
 protocol: the same training and validation trajectories, the same epoch size, early stopping on the
 validation loss with the same patience, and one wall-clock budget per model (no epoch starts after
-it; the budget is stated in the table). Runs go to DIR/runs/<model>-<task>. Then the runs and the
+it; the budget is stated in the table; a cosine recipe is extended to the epochs a timed probe
+epoch says fit it, never shortened below the recipe scaled by budget / 30 minutes). Runs go to DIR/runs/<model>-<task>. Then the runs and the
 classical trackers (the oracle first, when ``estimation.method("oracle")`` exists; knn-kalman;
 match-cv) are evaluated on test/seen and test/holdout at each noise level, all on the same noisy
 fingerprints, and DIR/paper_table.md (accuracy at 7 steps for tracking, the forecast for forecasting,
@@ -90,10 +91,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--calibrate",
         action=argparse.BooleanOptionalAction,
-        default=False,
-        help="size each cosine recipe on a timed probe epoch so that it ends within the budget "
-        "(default: scale it by budget / 30 minutes, which the budget may cut short; at 8 minutes "
-        "that trained better, README)",
+        default=True,
+        help="extend each cosine recipe to the epochs that a timed probe epoch says fit the budget "
+        "(default; never shorter than the recipe scaled by budget / 30 minutes); --no-calibrate "
+        "only scales it",
     )
     ap.add_argument(
         "--classical",
@@ -209,7 +210,7 @@ def _main(args) -> int:
         "patience": args.patience,
         "max_epochs": args.max_epochs,
         "budget_minutes": args.budget_minutes,
-        **({"calibrate": True} if args.calibrate else {}),  # folders from before the option stay valid
+        **({"calibrate": True} if args.calibrate else {}),  # older folders continue with --no-calibrate
         "sigma": args.sigma,
         "seed": args.seed,
         # forecasting: observed and predicted steps (the training defaults, used by every method)
@@ -303,11 +304,13 @@ def _calibrated(
     """TrainConfig settings that fit a cosine recipe into ``budget`` seconds on this machine, and the
     seconds their probe took.
 
-    A cosine schedule decays to zero by its last epoch, so a run the budget cuts short never
-    reaches its low learning rates: the epochs must be sized on what an epoch of this model and
-    task costs. A probe trains one warm-up epoch (when the recipe has a warm-up) and one sequence
-    epoch; the recipe gets as many epochs as the rest of the budget holds at those costs (95 % of
-    it, as epochs vary), at most its own and ``cap``. The probe's time counts against the budget.
+    The recipe scaled by ``budget / 30 minutes`` (:func:`budget_settings`) was sized on ``tn``'s
+    tracking epochs; a model or task with cheaper epochs (forecasting: 3 to 4x) ends it long before
+    the budget. A probe trains one warm-up epoch (when the recipe has a warm-up) and one sequence
+    epoch, and the recipe is extended to as many epochs as the rest of the budget holds at those
+    costs (95 % of it, as epochs vary), at most its own and ``cap``; never shortened below the
+    scaled one (sized to end within 8 minutes, tracking trained worse than cut short by the
+    budget: README). The probe's time counts against the budget.
     The result is kept in DIR/cache, so a resumed run keeps its schedule. Models on the plateau
     schedule get ``epochs = cap`` (the budget and early stopping end them).
     """
@@ -335,8 +338,13 @@ def _calibrated(
     share = recipe.get("warmup_epochs", 0) / recipe["epochs"] if warm else 0.0
     per_epoch = share * seconds[0] + (1 - share) * seconds[-1]
     left = 0.95 * budget - sum(seconds)
-    epochs = int(min(max(2, left // per_epoch), recipe["epochs"], cap))
-    _write_json(marker, {"epochs": epochs, "probe_seconds": seconds, "per_epoch": per_epoch})
+    # Never shorter than the recipe scaled by the budget: at 8 minutes a cosine sized to end within
+    # the budget trained worse than the longer one the budget cut (README).
+    scaled = budget_settings(base["model"], budget / 60.0)["epochs"]
+    epochs = int(min(max(2, left // per_epoch, scaled), recipe["epochs"], cap))
+    _write_json(
+        marker, {"epochs": epochs, "probe_seconds": seconds, "per_epoch": per_epoch, "scaled": scaled}
+    )
     log(f"{head}: probe epochs {', '.join(f'{t:.1f}' for t in seconds)} s -> {epochs} epochs in the budget")
     return {"epochs": epochs}, float(sum(seconds))
 

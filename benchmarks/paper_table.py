@@ -519,6 +519,11 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
     from mmwsim.files import write_text_atomic
 
     budget = f"{args.budget_minutes:g} min"
+    schedule = (
+        "scaled to the budget and extended to the epochs a timed probe epoch says fit it"
+        if protocol.get("calibrate")
+        else "shortened in proportion to the budget"
+    )
     n_test = {
         sp: {r["kind"]: r["n"] for r in ev.rows if r["split"] == sp and r["kind"] in KINDS} for sp in SPLITS
     }
@@ -531,7 +536,8 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
         f"noise) with early stopping on the loss over the same {protocol['n_validation']} validation "
         f"trajectories (patience {protocol['patience']} epochs, at most {protocol['max_epochs']} epochs; a model "
         "whose recipe decays its learning rate to zero by a set epoch (`tn` and the baselines, which share "
-        "its recipe) has that schedule shortened in proportion to the budget) and a wall-clock budget of {budget} per model: no epoch starts after it. The weights of the best "
+        f"its recipe) has that schedule {schedule}) and a wall-clock budget of {budget} per model: no "
+        "epoch starts after it. The weights of the best "
         "validation epoch are evaluated. All methods see the same noisy fingerprints per split and noise "
         "level. Mean per-trajectory RMSE (m); *seen*: test trajectories outside the spatial hold-out "
         "region, *held-out*: those touching it.\n",

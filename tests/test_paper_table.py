@@ -70,6 +70,7 @@ def test_paper_table_resumes_and_writes_the_table(paper_table, tmp_path, capsys)
         assert (out / "runs" / name / "model.pt").exists()
     md = (out / "paper_table.md").read_text()
     assert "training budget 0.05 min per model" in md
+    assert "wall-clock budget of 0.05 min per model" in md and "{" not in md.split("## Tracking")[0]
     tracking, rest = md.split("## Tracking", 1)[1].split("## Forecasting", 1)
     forecasting, cost = rest.split("## Cost", 1)
     for section in (tracking, forecasting):

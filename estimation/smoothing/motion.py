@@ -184,8 +184,7 @@ class MotionTable(nn.Module):
         A position's speed is that of its step in (the first one's, of its step out). The fast
         users' histogram, smoothed by a Gaussian of ``smooth`` cells, becomes the density ratio
         ``(h + floor u) / ((1 + floor) u)`` against their flat density ``u`` over the cells any
-        user visited: ``1 + h / u`` in lanes, ``floor / (1 + floor)`` where none went. Returns
-        ``self``.
+        user visited: above 1 in lanes, ``floor / (1 + floor)`` where none went. Returns ``self``.
         """
         from scipy.ndimage import gaussian_filter
 
@@ -197,7 +196,8 @@ class MotionTable(nn.Module):
         H, W = (int(v) for v in shape)
         if H < 1 or W < 1 or not res > 0 or not floor > 0 or not speed >= 0:
             raise ValueError(
-                f"need a positive table shape, resolution and floor, got {shape}, {res}, {floor}"
+                f"need a positive table shape, resolution and floor and a speed >= 0, got {shape}, {res}, "
+                f"{floor}, {speed}"
             )
         step = np.linalg.norm(np.diff(p, axis=1), axis=-1)  # (n, L-1)
         fast = np.concatenate([step[:, :1], step], axis=1).ravel() > speed

@@ -86,6 +86,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--length", type=int, default=7)
     ap.add_argument("--noise", type=float, default=6.0, help="dB (default 6)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--measured-motion-only",
+        action="store_true",
+        help="without the broadened alternative motion (Estimator.robust_motion = False)",
+    )
     args = ap.parse_args(argv)
 
     import torch
@@ -98,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
 
     ds = Dataset.open(args.dataset)
     est = Estimator.load(args.run).attach(ds, sigma=args.noise)
+    est.robust_motion = not args.measured_motion_only
     fs = FreeSpace.from_scene(
         ds.scene(), clearance=0.5, coverage=CoverageMask.from_dataset(ds), bounds=ds.grid.bounds
     )

@@ -195,12 +195,20 @@ class Estimator(nn.Module):
     n_beams, n_bins : int
         Fingerprint shape ``M x N_s``.
     normaliser : Normaliser
+
+    Attributes
+    ----------
+    robust_motion : bool
+        Whether a grid-reading network's filter also weighs a broadened copy of the measured
+        motion for users who do not move like the training users (default True; see
+        :meth:`candidate_filter`).
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
         super().__init__()
         self.config, self.n_beams, self.n_bins, self.normaliser = config, n_beams, n_bins, normaliser
         self.matcher: FingerprintMatcher | None = None
+        self.robust_motion = True
         self.net = build_network(
             config.model,
             n_beams,
@@ -268,16 +276,27 @@ class Estimator(nn.Module):
             )
         return self.matcher.candidate_points(bits, self.net.search)
 
-    def candidate_filter(self) -> CandidateFilter:
+    def candidate_filter(self, robust: bool | None = None) -> CandidateFilter:
         """A fresh online filter over the grid's match candidates with the network's motion
         tables (:class:`~estimation.smoothing.online.CandidateFilter`): feed it one step of
         :meth:`search` results at a time, then :meth:`~CandidateFilter.smooth` gives what the
-        network reads for any prefix. Only for a grid-reading network."""
+        network reads for any prefix. Only for a grid-reading network.
+
+        With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
+        the measured motion against their
+        :meth:`~estimation.smoothing.motion.MotionTable.broadened` copies by the evidence of each
+        user's fingerprints, for users who do not move like the training users."""
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
-        motion = net.motion if bool(net.motion.fitted) else MixtureMotion()  # else the hand-set one
-        return CandidateFilter(motion, net.motion_fine, float(net.grid_step), net.k)
+        if not bool(net.motion.fitted):  # the hand-set motion
+            return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
+        step = float(net.grid_step)
+        alternative = None
+        if self.robust_motion if robust is None else robust:
+            fine = net.motion_fine.broadened(unit=step) if bool(net.motion_fine.fitted) else None
+            alternative = (net.motion.broadened(), fine)
+        return CandidateFilter(net.motion, net.motion_fine, step, net.k, alternative=alternative)
 
     def inputs(
         self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None

@@ -152,6 +152,34 @@ def test_motion_table_is_a_density_in_the_frame_of_the_motion():
         MotionTable().fit(np.full((3, 4, 2), np.nan))
 
 
+def test_broadened_table_mixes_turns_and_steering_noise_into_the_measured_one():
+    table = MotionTable().fit(_straight_tracks()).fit_place(_straight_tracks(), (0.0, 0.0), 2.0, (200, 200))
+    wide = table.broadened()
+    assert table.has_place and not wide.has_place and bool(wide.fitted)
+    # still densities where the turn ring fits inside the table's reach (mid speeds <= 6 per step)
+    edges = table.speed_edges.tolist()
+    mids = [(lo + hi) / 2 for lo, hi in zip([0.0] + edges, edges + [1.4 * edges[-1]], strict=True)]
+    low = [b for b, s in enumerate(mids) if s <= 6.0]
+    mass = wide.log_accel_table[low].double().exp().sum((1, 2)) * wide.bin**2
+    assert torch.allclose(mass, torch.ones(len(low), dtype=torch.float64), atol=1e-3)
+    # a reversal at 8 m/step, next to impossible for the straight tracks, is a plain turn now
+    v, back = torch.tensor([8.0, 0.0]), torch.tensor([-16.0 + 0.25, 0.25])
+    assert float(wide.log_accel(v, back) - table.log_accel(v, back)) > 5.0
+    # no weight on the alternatives: the measured table itself
+    same = table.broadened(turn=0.0, steer=0.0, flat_step=0.0)
+    assert torch.allclose(same.log_accel_table, table.log_accel_table, atol=1e-5)
+    assert torch.allclose(same.log_step_table, table.log_step_table, atol=1e-5)
+    # steering noise alone, its spread given in metres, on a table of 0.5 m units
+    b = 2  # speeds 1.2 .. 1.6 units, mid 1.4
+    only = table.broadened(unit=0.5, turn=0.0, steer=1.0)
+    sd = (0.7 + 0.1 * 1.4 * 0.5) / 0.5
+    c = table.bin / 2  # the bin centre next to zero acceleration
+    expected = math.log(math.exp(-(2 * c * c) / (2 * sd**2)) / (2 * math.pi * sd**2))
+    assert float(only.log_accel_table[b, 32, 32]) == pytest.approx(expected, abs=1e-5)
+    with pytest.raises(ValueError, match="weights"):
+        table.broadened(turn=0.6, steer=0.6)
+
+
 def test_place_table_keeps_fast_users_in_their_lanes_and_leaves_slow_ones_alone():
     # fast users (3 m/step) only along the lane y = 2; walkers (0.5 m/step) anywhere
     lane = np.stack([np.arange(8) * 3.0, np.full(8, 2.0)], -1)[None].repeat(50, 0)
@@ -359,7 +387,12 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert bool(est.net.motion.fitted) and est.net.motion.has_place
     assert torch.equal(est.net.motion.log_accel_table, expect.log_accel_table)
     assert torch.equal(est.net.motion.log_place, expect.log_place)
-    xy, post, fine = est.inputs(bits[:4])
+    # (the measured motion alone: the robust filter also weighs in its broadened copy, test_online)
+    found = est.search(bits[:4])
+    assert est.candidate_filter().run(*found).model_weights().shape == (4, 2)
+    est.robust_motion = False
+    assert est.candidate_filter().run(*found).model_weights().shape == (4, 1)
+    xy, post, fine = est.candidate_filter().run(*found).smooth()
     assert torch.allclose(
         post[..., -1], velocity_posterior(xy, post[..., 0], expect).clamp(min=-30), atol=1e-5
     )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -23,10 +25,10 @@ def _tracks(n=400, length=8, seed=0):
     return np.concatenate([np.zeros((n, 1, 2)), np.cumsum(steps, 1)], 1)
 
 
-def _candidates(B=3, T=6, S=10, seed=1):
+def _candidates(B=3, T=6, S=10, seed=1, true=None):
     """Candidates scattered around true tracks (continuous positions: no ties on table bins)."""
     g = np.random.default_rng(seed)
-    true = _tracks(B, T, seed)
+    true = _tracks(B, T, seed) if true is None else true
     xy = true[:, :, None] + g.normal(0, 2.0, (B, T, S, 2))
     xy[:, :, 0] = true + g.normal(0, 0.3, (B, T, 2))
     score = -np.square(xy - true[:, :, None]).sum(-1) / 4.0 + g.normal(0, 0.5, (B, T, S))
@@ -134,3 +136,73 @@ def test_online_tracker_updates_per_step_and_tracks_like_predict():
         tracker.update(bits[:, 0, :3])
     with pytest.raises(EstimationError, match="after steps of 64"):
         tracker.update(bits[:3, 0])
+
+
+def test_evidence_of_an_unpruned_beam_is_the_sum_over_all_paths():
+    xy, score = _candidates(B=2, T=4, S=3)
+    f = CandidateFilter(PLACED, k=3, beam=9).run(xy, score)
+    lp = torch.log_softmax(score.double(), -1)
+    x = xy.double()
+    for b in range(2):
+        for T in range(1, 5):
+            terms = []
+            for path in itertools.product(range(3), repeat=T):
+                p = torch.stack([x[b, t, j] for t, j in enumerate(path)])
+                logp = sum(float(lp[b, t, j]) for t, j in enumerate(path))
+                if T > 1:
+                    logp += float(PLACED.log_first(p[1] - p[0]) + PLACED.log_place_ratio(p[1] - p[0], p[0]))
+                    logp += sum(float(PLACED.log_place_ratio(p[t] - p[t - 1], p[t])) for t in range(1, T))
+                    logp += sum(
+                        float(PLACED.log_accel(p[t] - p[t - 1], p[t + 1] - 2 * p[t] + p[t - 1]))
+                        for t in range(1, T - 1)
+                    )
+                terms.append(logp)
+            assert f.cells.evidence[T - 1][b] == pytest.approx(
+                float(torch.tensor(terms).logsumexp(0)), abs=1e-4
+            )
+
+
+def test_an_alternative_that_is_the_same_model_changes_nothing():
+    xy, score = _candidates(T=5)
+    one = CandidateFilter(MOTION, k=8, beam=30).run(xy, score)
+    two = CandidateFilter(MOTION, k=8, beam=30, alternative=(MOTION, None), alternative_prior=0.3).run(
+        xy, score
+    )
+    np.testing.assert_allclose(two.model_weights(), np.tile([0.7, 0.3], (3, 1)), atol=1e-12)
+    for a, b in zip(one.smooth(), two.smooth(), strict=True):
+        assert torch.allclose(a, b, atol=1e-5)
+    np.testing.assert_allclose(np.stack(one.positions), np.stack(two.positions), atol=1e-9)
+    with pytest.raises(ValueError, match="prior"):
+        CandidateFilter(MOTION, alternative=(MOTION, None), alternative_prior=1.0)
+
+
+def _turning_tracks(n, length, seed):
+    """Users at 6 m/step who take a new random heading at every step."""
+    rng = np.random.default_rng(seed)
+    heading = rng.uniform(0, 2 * np.pi, (n, length - 1))
+    steps = 6.0 * np.stack([np.cos(heading), np.sin(heading)], -1)
+    return np.concatenate([np.zeros((n, 1, 2)), np.cumsum(steps, 1)], 1)
+
+
+def test_the_evidence_picks_the_motion_a_user_follows():
+    """The measured table's own users keep it; users who turn at random go over to the broadened
+    alternative, and the averaged filter tracks each group as well as the better single model."""
+    # measured as the candidates see them: with their 0.3 m scatter about the truth
+    tracks = _tracks(20000, seed=9)
+    motion = MotionTable().fit(tracks + np.random.default_rng(9).normal(0, 0.3, tracks.shape))
+    groups = {"ours": _tracks(60, 7, seed=5), "turning": _turning_tracks(60, 7, seed=6)}
+    for name, true in groups.items():
+        xy, score = _candidates(B=60, T=7, S=12, seed=7, true=true)
+        alone = CandidateFilter(motion, k=12, beam=60).run(xy, score)
+        broad = CandidateFilter(motion.broadened(), k=12, beam=60).run(xy, score)
+        both = CandidateFilter(motion, k=12, beam=60, alternative=(motion.broadened(), None)).run(xy, score)
+        err = {
+            key: np.linalg.norm(f.smooth()[2].double().numpy() - true, axis=-1).mean()
+            for key, f in (("alone", alone), ("broad", broad), ("both", both))
+        }
+        w_alt = both.model_weights()[:, 1].mean()
+        if name == "ours":
+            assert w_alt < 0.3
+        else:
+            assert w_alt > 0.9 and err["both"] < 0.6 * err["alone"]
+        assert err["both"] <= 1.02 * min(err["alone"], err["broad"]), (name, err)

@@ -12,7 +12,9 @@ step squared). Two models give those densities:
   the motion) from a turn (across it), which a single isotropic mixture mixes up. ``tn-match``
   fits one on its training split; it is saved with the network's weights. Its optional place
   table (:meth:`MotionTable.fit_place`) adds where fast users were, a density ratio against
-  the flat one over the visited area, so vehicles stay in their lanes.
+  the flat one over the visited area, so vehicles stay in their lanes. Its
+  :meth:`MotionTable.broadened` copy is the alternative the online filter weighs it against, for
+  users who do not move like the training users.
 
 Both take ``v`` and ``a`` as ``(..., 2)`` tensors in metres per step that broadcast against each
 other and return log densities per square metre of the same broadcast shape without the last axis.
@@ -34,6 +36,7 @@ __all__ = [
     "PLACE_FLOOR",
     "PLACE_SPEED",
     "SUBCELLS",
+    "BROAD",
     "snap_to_lattice",
 ]
 
@@ -50,6 +53,12 @@ PLACE_SPEED = 5.0
 # Weight of the flat density mixed into the measured one: a place no fast training user visited is
 # this much (relative) less likely than the average place, never impossible.
 PLACE_FLOOR = 3.0
+# The alternative motion of :meth:`MotionTable.broadened`, for users whose motion is not the
+# training data's: weights of a turn to any heading at the band's speed and of steering noise of
+# spread ``steer_sigma[0] + steer_sigma[1] * speed`` (metres per step squared), the rest the
+# measured acceleration; and the weight of a flat first displacement. Chosen on trajectories of
+# benchmarks/foreign_motion.py's generators with our own test set kept as it was (README).
+BROAD = {"turn": 0.2, "steer": 0.75, "steer_sigma": (0.7, 0.1), "flat_step": 0.3}
 
 
 def snap_to_lattice(u: np.ndarray, n_sub: int = SUBCELLS) -> np.ndarray:
@@ -228,6 +237,60 @@ class MotionTable(nn.Module):
         self.place_origin = torch.tensor(origin)
         self.place_res = torch.tensor(float(res), dtype=torch.float64)
         return self
+
+    @torch.no_grad()
+    def broadened(
+        self,
+        unit: float = 1.0,
+        turn: float = BROAD["turn"],
+        steer: float = BROAD["steer"],
+        steer_sigma: tuple[float, float] = BROAD["steer_sigma"],
+        flat_step: float = BROAD["flat_step"],
+    ) -> MotionTable:
+        """A copy whose motion is far less sure than the measured one, and which has no place
+        table: the alternative hypothesis for a user that does not move like the training users.
+
+        Every speed band's acceleration density becomes the mixture of a turn to a uniformly
+        random heading at the band's mid speed ``s`` (weight ``turn``; a ring of radius ``s``
+        around ``-v``, blurred by ``0.5 + 0.15 s``), isotropic steering noise
+        ``N(0, (steer_sigma[0] + steer_sigma[1] s)^2 I)`` (weight ``steer``) and the measured
+        density (the rest); the first displacement's density mixes the measured one with a flat
+        density over the table's reach (weight ``flat_step``). ``unit`` is the length of one table
+        unit in metres (the grid spacing for :meth:`lattice` tables), as ``steer_sigma`` and the
+        ring's blur are in metres.
+        """
+        if not (turn >= 0 and steer >= 0 and turn + steer <= 1 and 0 <= flat_step <= 1 and unit > 0):
+            raise ValueError(
+                f"need weights turn, steer >= 0 with turn + steer <= 1, flat_step in [0, 1] and unit > 0, "
+                f"got {turn}, {steer}, {flat_step}, {unit}"
+            )
+        out = MotionTable(
+            tuple(self.speed_edges.tolist()), self.bin, self.reach, len(self.log_step_table) * self.bin
+        )
+        out.load_state_dict(self.state_dict())
+        out.drop_place()
+        n_acc = self.log_accel_table.shape[1]
+        c = -self.reach + (np.arange(n_acc) + 0.5) * self.bin
+        along, across = np.meshgrid(c, c, indexing="ij")
+        edges = self.speed_edges.double().numpy()
+        top = 1.4 * edges[-1] if len(edges) else self.reach / 2
+        lo, hi = np.concatenate([[0.0], edges]), np.concatenate([edges, [top]])
+        theta = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)[:, None, None]
+        for b, s in enumerate(0.5 * (lo + hi)):
+            blur = (0.5 + 0.15 * s * unit) / unit
+            d2 = (along - s * (np.cos(theta) - 1)) ** 2 + (across - s * np.sin(theta)) ** 2
+            ring = np.exp(-d2 / (2 * blur**2)).mean(0) / (2 * np.pi * blur**2)
+            sd = (steer_sigma[0] + steer_sigma[1] * s * unit) / unit
+            noise = np.exp(-(along**2 + across**2) / (2 * sd**2)) / (2 * np.pi * sd**2)
+            measured = np.exp(self.log_accel_table[b].double().numpy())
+            mix = (1 - turn - steer) * measured + turn * ring + steer * noise
+            out.log_accel_table[b] = torch.from_numpy(np.log(np.maximum(mix, 1e-300)))
+        n_step = len(self.log_step_table)
+        r = (np.arange(n_step) + 0.5) * self.bin
+        flat = 1.0 / (2 * np.pi * r * n_step * self.bin)  # uniform in length up to the reach, per unit^2
+        step = (1 - flat_step) * np.exp(self.log_step_table.double().numpy()) + flat_step * flat
+        out.log_step_table.copy_(torch.from_numpy(np.log(step)))
+        return out
 
     @classmethod
     def lattice(cls, n_sub: int = SUBCELLS) -> MotionTable:

@@ -12,6 +12,10 @@ only the steps so far:
    into ``n_sub x n_sub`` lattice points, and the same beam over those with the lattice's motion
    table.
 
+Stages 2 and 3 run once per motion model: with an alternative model (``tn-match`` adds the
+measured tables' :meth:`~estimation.smoothing.motion.MotionTable.broadened` copy) each user's
+result is the two models' average weighted by their evidence so far.
+
 Each update costs the same whatever the number of steps before it and gives the user's current
 position (the filtered sub-cell mean). :meth:`CandidateFilter.smooth` turns the stored messages of
 any prefix into the smoothed candidates, posteriors and positions the network reads, by one
@@ -29,12 +33,15 @@ from .beam import motion_arrays, pair_backward, pair_forward, pair_start, rw_ste
 from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _step_distances
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
-__all__ = ["BEAM", "FINE_BEAM", "FINE_CELLS", "CandidateFilter"]
+__all__ = ["ALTERNATIVE_PRIOR", "BEAM", "FINE_BEAM", "FINE_CELLS", "CandidateFilter"]
 
 BEAM = 512  # pairs of cell candidates kept per step
 FINE_CELLS = 8  # cells per step split into sub-cells (more than the offline smoother's 6: it
 # chooses them by the filtered marginal, which knows less than the smoothed one)
 FINE_BEAM = 512  # pairs of sub-cell points kept per step
+# Prior probability that a user does not move like the training users (the alternative motion
+# model); even odds, as the evidence of seven steps decides clearly either way (README).
+ALTERNATIVE_PRIOR = 0.5
 
 
 def _log_softmax(x: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -64,6 +71,7 @@ class _Beam:
         self.lp: list[np.ndarray] = []  # (B, K) per step
         self.pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
         self.marg: list[np.ndarray] = []  # (B, K) filtered log marginals
+        self.evidence: list[np.ndarray] = []  # (B,) log evidence of the steps so far
 
     def update(self, xy: np.ndarray, lp: np.ndarray) -> np.ndarray:
         """Add a step's points ``xy (B, K, 2)`` and log likelihoods ``lp (B, K)``; returns the
@@ -84,6 +92,10 @@ class _Beam:
         self.lp.append(lp)
         self.pairs.append(None if pairs is None else tuple(pairs))
         self.marg.append(marg)
+        # log p(steps so far | motion) up to the beam's pruning (the pair messages are not
+        # normalised; the first step's likelihoods are)
+        la = pairs[2] if pairs is not None else lp
+        self.evidence.append(np.asarray(torch.logsumexp(torch.from_numpy(la), dim=1)))
         return marg
 
     def smooth(self, T: int) -> list[np.ndarray]:
@@ -119,8 +131,24 @@ def _grouped(val: np.ndarray, group: np.ndarray, K: int) -> np.ndarray:
     return np.asarray(out.clamp(min=-1e300))
 
 
+class _Hypothesis:
+    """One motion model's cell and sub-cell beams over the shared candidates."""
+
+    def __init__(self, motion, motion_fine, beam: int, fine_beam: int):
+        self.cells = _Beam(motion, beam)
+        fitted = motion_fine is not None and bool(motion_fine.fitted)
+        self.fine = _Beam(motion_fine, fine_beam) if fitted else None
+        self.top: list[np.ndarray] = []  # (B, fine_k) cells split at every step
+
+
 class CandidateFilter:
     """Forward filter (and prefix smoother) over per-step match candidates of a batch of users.
+
+    With an ``alternative`` motion model the filter runs both models over the same candidates
+    and averages them by their evidence: each user's track is the mixture of the two models'
+    results, weighted by ``p(model | fingerprints so far)``. A user who moves like the training
+    users keeps the measured model's sharp prior; one who does not (other speeds, sharp turns)
+    moves over to the broad one (:meth:`MotionTable.broadened`).
 
     Parameters
     ----------
@@ -139,6 +167,10 @@ class CandidateFilter:
         Cells per step split into sub-cells.
     n_sub : int
         Sub-cells per axis.
+    alternative : (MotionTable, MotionTable or None), optional
+        A second cell-level and sub-cell motion model, as ``motion`` and ``motion_fine``.
+    alternative_prior : float
+        Prior probability of the alternative model, in (0, 1).
     """
 
     def __init__(
@@ -151,22 +183,40 @@ class CandidateFilter:
         fine_k: int = FINE_CELLS,
         fine_beam: int = FINE_BEAM,
         n_sub: int = SUBCELLS,
+        alternative: tuple[MotionTable | MixtureMotion, MotionTable | None] | None = None,
+        alternative_prior: float = ALTERNATIVE_PRIOR,
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
-        self.cells = _Beam(motion, beam)
-        fitted = motion_fine is not None and bool(motion_fine.fitted)
-        self.fine = _Beam(motion_fine, fine_beam) if fitted else None
+        self._models = [_Hypothesis(motion, motion_fine, beam, fine_beam)]
+        if alternative is not None:
+            if not 0.0 < alternative_prior < 1.0:
+                raise ValueError(f"the alternative model's prior must lie in (0, 1), got {alternative_prior}")
+            self._models.append(_Hypothesis(*alternative, beam, fine_beam))
+            self._log_prior = np.log([1.0 - alternative_prior, alternative_prior])
+        else:
+            self._log_prior = np.zeros(1)
         off = (np.arange(n_sub) - (n_sub - 1) / 2) / n_sub
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
         self._rw: np.ndarray | None = None  # (B, k, n_s) filtered random-walk posteriors
         self.positions: list[np.ndarray] = []  # (B, 2) filtered estimate of every step
-        self._top: list[np.ndarray] = []  # (B, fine_k) cells split at every step
+
+    @property
+    def cells(self) -> _Beam:
+        """The (first) motion model's cell beam."""
+        return self._models[0].cells
 
     @property
     def steps(self) -> int:
         """Steps seen so far."""
         return len(self.positions)
+
+    def model_weights(self, T: int | None = None) -> np.ndarray:
+        """``(B, n_models)`` posterior probability of each motion model (the measured one first)
+        given the first ``T`` steps (default all)."""
+        T = self.steps if T is None else int(T)
+        ev = np.stack([h.cells.evidence[T - 1] for h in self._models], -1) + self._log_prior
+        return np.asarray(torch.softmax(torch.from_numpy(ev), dim=-1))
 
     def update(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> np.ndarray:
         """Add one step: the matcher's candidates ``xy (B, S, 2)`` metres and their
@@ -185,12 +235,16 @@ class CandidateFilter:
         kxy = np.take_along_axis(xy, keep[..., None], 1)
         klp = np.take_along_axis(lp, keep, 1)
         self._rw = _log_softmax(np.take_along_axis(rw, keep[..., None], 1), axis=1)
-        marg = self.cells.update(kxy, klp)
-        if self.fine is None:
-            pos = (np.exp(marg)[..., None] * kxy).sum(1)
-        else:
-            fxy, flp = self._subcells(kxy, klp, marg)
-            pos = (np.exp(self.fine.update(fxy, flp))[..., None] * fxy).sum(1) * self.spacing
+        per_model = []
+        for h in self._models:
+            marg = h.cells.update(kxy, klp)
+            if h.fine is None:
+                per_model.append((np.exp(marg)[..., None] * kxy).sum(1))
+            else:
+                fxy, flp = self._subcells(h, kxy, klp, marg)
+                per_model.append((np.exp(h.fine.update(fxy, flp))[..., None] * fxy).sum(1) * self.spacing)
+        w = self.model_weights(len(self.positions) + 1)
+        pos = sum(w[:, i, None] * p for i, p in enumerate(per_model))
         self.positions.append(pos)
         return pos
 
@@ -201,11 +255,13 @@ class CandidateFilter:
             self.update(xy[:, t], score[:, t])
         return self
 
-    def _subcells(self, kxy: np.ndarray, klp: np.ndarray, marg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _subcells(
+        self, h: _Hypothesis, kxy: np.ndarray, klp: np.ndarray, marg: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The ``fine_k`` best cells by ``marg`` as lattice points ``(B, fine_k n_sub^2, 2)`` grid
         units with their cells' log likelihoods."""
         top = np.argsort(-marg, axis=1, kind="stable")[:, : self.fine_k]
-        self._top.append(top)
+        h.top.append(top)
         cxy = np.take_along_axis(kxy, top[..., None], 1) / self.spacing
         clp = np.take_along_axis(klp, top, 1)
         B, n = cxy.shape[0], len(self._offsets)
@@ -220,7 +276,8 @@ class CandidateFilter:
         xy : (B, T, k, 2) float32, metres; the kept candidates
         post : (B, T, k, 2 + len(STEP_SIGMAS)) float32
             Step-wise log posterior under a flat prior, the smoothed random-walk posteriors at
-            each step scale, then the smoothed constant-velocity posterior; clipped at -30.
+            each step scale, then the smoothed constant-velocity posterior (averaged over the
+            motion models); clipped at -30.
         fine : (B, T, 2) float32, metres; smoothed positions (sub-cell posterior means)
         """
         T = self.steps if T is None else int(T)
@@ -229,19 +286,29 @@ class CandidateFilter:
         xy = torch.from_numpy(np.stack(self.cells.xy[:T], 1)).float()
         lp = torch.from_numpy(np.stack(self.cells.lp[:T], 1)).float()
         d2 = _step_distances(xy)
-        cv = torch.from_numpy(np.stack(self.cells.smooth(T), 1)).float()
+        w = torch.from_numpy(self.model_weights(T))[:, None, None]  # (B, 1, 1, n_models)
+        p = torch.zeros(xy.shape[:3], dtype=torch.float64)
+        fine = torch.zeros(xy.shape[0], T, 2, dtype=torch.float64)
+        for i, h in enumerate(self._models):
+            pi, fi = self._smooth_one(h, T, xy)
+            p += w[..., i] * pi
+            fine += w[..., i] * fi
+        cv = p.log().clamp(min=-1e300).float()
         post = torch.stack([lp] + [_random_walk(d2, lp, s) for s in STEP_SIGMAS] + [cv], -1)
-        p = torch.softmax(cv.double(), -1)  # (B, T, k) smoothed cell marginals
-        if self.fine is None:
-            fine = (p[..., None] * xy).sum(2).float()
-        else:
-            # The sub-cells are the conditional mean given the cells split at each step, which
-            # were chosen before the later steps were seen; the smoothed mass of the other cells
-            # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
-            w = np.exp(np.stack(self.fine.smooth(T), 1))
-            sub = torch.from_numpy((w[..., None] * np.stack(self.fine.xy[:T], 1)).sum(2) * self.spacing)
-            inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(self._top[:T], 1)), 1.0)
-            mass = (p * inside).sum(-1, keepdim=True)
-            rest = (p * (1 - inside))[..., None] * xy.double()
-            fine = (mass * sub + rest.sum(2)).float()
-        return xy, post.clamp(min=LOGP_FLOOR), fine
+        return xy, post.clamp(min=LOGP_FLOOR), fine.float()
+
+    def _smooth_one(self, h: _Hypothesis, T: int, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One motion model's smoothed cell marginals ``(B, T, k)`` and positions ``(B, T, 2)``
+        metres, float64."""
+        p = torch.softmax(torch.from_numpy(np.stack(h.cells.smooth(T), 1)), -1)
+        if h.fine is None:
+            return p, (p[..., None] * xy.double()).sum(2)
+        # The sub-cells are the conditional mean given the cells split at each step, which were
+        # chosen before the later steps were seen; the smoothed mass of the other cells (an alias
+        # the first fingerprint preferred, say) keeps its cell-level mean.
+        w = np.exp(np.stack(h.fine.smooth(T), 1))
+        sub = torch.from_numpy((w[..., None] * np.stack(h.fine.xy[:T], 1)).sum(2) * self.spacing)
+        inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
+        mass = (p * inside).sum(-1, keepdim=True)
+        rest = (p * (1 - inside))[..., None] * xy.double()
+        return p, mass * sub + rest.sum(2)

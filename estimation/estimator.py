@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -21,7 +22,7 @@ from .errors import EstimationError
 from .matching import FingerprintMatcher
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
-from .smoothing.motion import MixtureMotion
+from .smoothing.motion import MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
@@ -209,6 +210,7 @@ class Estimator(nn.Module):
         self.config, self.n_beams, self.n_bins, self.normaliser = config, n_beams, n_bins, normaliser
         self.matcher: FingerprintMatcher | None = None
         self.robust_motion = True
+        self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
         self.net = build_network(
             config.model,
             n_beams,
@@ -292,11 +294,23 @@ class Estimator(nn.Module):
         if not bool(net.motion.fitted):  # the hand-set motion
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
         step = float(net.grid_step)
-        alternative = None
-        if self.robust_motion if robust is None else robust:
-            fine = net.motion_fine.broadened(unit=step) if bool(net.motion_fine.fitted) else None
-            alternative = (net.motion.broadened(), fine)
+        alternative = self._broadened_motion() if (self.robust_motion if robust is None else robust) else None
         return CandidateFilter(net.motion, net.motion_fine, step, net.k, alternative=alternative)
+
+    def _broadened_motion(self) -> tuple[MotionTable, MotionTable | None]:
+        """The motion tables' broadened copies, made again only when the tables change (a
+        filter is made per batch in training and evaluation)."""
+        net = self.net
+        digest = hashlib.sha1(str(float(net.grid_step)).encode())
+        for table in (net.motion, net.motion_fine):
+            for t in (table.fitted, table.speed_edges, table.log_step_table, table.log_accel_table):
+                digest.update(t.numpy().tobytes())
+        key = digest.digest()
+        if self._broadened is None or self._broadened[0] != key:
+            step = float(net.grid_step)
+            fine = net.motion_fine.broadened(unit=step) if bool(net.motion_fine.fitted) else None
+            self._broadened = (key, (net.motion.broadened(), fine))
+        return self._broadened[1]
 
     def inputs(
         self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None

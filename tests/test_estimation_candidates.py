@@ -390,6 +390,12 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # (the measured motion alone: the robust filter also weighs in its broadened copy, test_online)
     found = est.search(bits[:4])
     assert est.candidate_filter().run(*found).model_weights().shape == (4, 2)
+    # the broadened copies are made once per set of tables, not once per filter
+    broad = est._broadened_motion()
+    assert est._broadened_motion() is broad
+    est.net.motion_fine.log_step_table[0] += 1.0
+    assert est._broadened_motion() is not broad
+    est.net.motion_fine.log_step_table[0] -= 1.0
     est.robust_motion = False
     assert est.candidate_filter().run(*found).model_weights().shape == (4, 1)
     xy, post, fine = est.candidate_filter().run(*found).smooth()

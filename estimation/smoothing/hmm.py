@@ -104,7 +104,8 @@ def velocity_posterior(
     velocity): the first displacement ``x_1 - x_0`` is scored by ``motion.log_first`` and every
     later change of displacement ``x_t+1 - 2 x_t + x_t-1`` by ``motion.log_accel`` given the
     displacement before it; a :class:`MotionTable` with place tables also scores every position
-    by :meth:`~MotionTable.log_place_ratio` given the displacement into it (out of it at step 0). Costs ``O(T K^3)`` per sequence, so it runs on pruned candidates.
+    by :meth:`~MotionTable.log_place_ratio` given the displacement into it (out of it at step 0).
+    Costs ``O(T K^3)`` per sequence, so it runs on pruned candidates.
 
     Parameters
     ----------

@@ -36,7 +36,6 @@ __all__ = [
     "PLACE_FLOOR",
     "PLACE_SPEED",
     "SUBCELLS",
-    "BROAD",
     "snap_to_lattice",
 ]
 
@@ -53,12 +52,6 @@ PLACE_SPEED = 5.0
 # Weight of the flat density mixed into the measured one: a place no fast training user visited is
 # this much (relative) less likely than the average place, never impossible.
 PLACE_FLOOR = 3.0
-# The alternative motion of :meth:`MotionTable.broadened`, for users whose motion is not the
-# training data's: weights of a turn to any heading at the band's speed and of steering noise of
-# spread ``steer_sigma[0] + steer_sigma[1] * speed`` (metres per step squared), the rest the
-# measured acceleration; and the weight of a flat first displacement. Chosen on trajectories of
-# benchmarks/foreign_motion.py's generators with our own test set kept as it was (README).
-BROAD = {"turn": 0.2, "steer": 0.75, "steer_sigma": (0.7, 0.1), "flat_step": 0.3}
 
 
 def snap_to_lattice(u: np.ndarray, n_sub: int = SUBCELLS) -> np.ndarray:
@@ -242,10 +235,10 @@ class MotionTable(nn.Module):
     def broadened(
         self,
         unit: float = 1.0,
-        turn: float = BROAD["turn"],
-        steer: float = BROAD["steer"],
-        steer_sigma: tuple[float, float] = BROAD["steer_sigma"],
-        flat_step: float = BROAD["flat_step"],
+        turn: float = 0.2,
+        steer: float = 0.75,
+        steer_sigma: tuple[float, float] = (0.7, 0.1),
+        flat_step: float = 0.3,
     ) -> MotionTable:
         """A copy whose motion is far less sure than the measured one, and which has no place
         table: the alternative hypothesis for a user that does not move like the training users.
@@ -257,7 +250,8 @@ class MotionTable(nn.Module):
         density (the rest); the first displacement's density mixes the measured one with a flat
         density over the table's reach (weight ``flat_step``). ``unit`` is the length of one table
         unit in metres (the grid spacing for :meth:`lattice` tables), as ``steer_sigma`` and the
-        ring's blur are in metres.
+        ring's blur are in metres. The defaults were chosen on the trajectories of
+        benchmarks/foreign_motion.py's generators, keeping our own test set's error (README).
         """
         if not (turn >= 0 and steer >= 0 and turn + steer <= 1 and 0 <= flat_step <= 1 and unit > 0):
             raise ValueError(

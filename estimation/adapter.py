@@ -17,6 +17,7 @@ import torch
 from mmwsim.constants import BINS, THRESHOLD_DBM
 from mmwsim.fingerprints import GridField
 from mmwsim.trajectories.motion import KINDS
+from mmwsim.trajectories.streets import STREET_HALF_WIDTH
 
 from .data import SequenceSet
 from .errors import EstimationError
@@ -29,6 +30,7 @@ __all__ = [
     "load_sets",
     "scene_footprints",
     "sequence_set",
+    "street_lines",
 ]
 
 _CHUNK = 8192  # grid points per read
@@ -69,6 +71,7 @@ class GridTable:
     xy : (G_valid, 2) float64, metres
     flat_index : (G_valid,) int64, index of each row in the full grid
     extent : (2, 2) float64, ``[[x_min, y_min], [x_max, y_max]]`` of the full grid
+    streets : (e, 2, 2) float64 or None, the scene's street centre lines (:func:`street_lines`)
     """
 
     def __init__(self, dataset: Any, bins: slice | None = None, dtype: torch.dtype = torch.float16):
@@ -107,6 +110,7 @@ class GridTable:
         self._row_of_flat = np.full(grid.size, -1, dtype=np.int64)
         self._row_of_flat[self.flat_index] = np.arange(len(self.flat_index))
         self._field = GridField(grid, pdp, valid)
+        self.streets = street_lines(dataset)
 
     def rows(self, positions: np.ndarray) -> np.ndarray:
         """Row of the nearest valid grid point for each ``(..., 2)`` position (metres) -> ``(...,)`` int64."""
@@ -123,7 +127,35 @@ def sequence_set(
         raise EstimationError(f"unknown trajectory kinds {unknown}")
     kind = np.array([KINDS.index(k) for k in names], dtype=np.int8).reshape(len(names))
     pos = np.asarray(positions, dtype=np.float32)
-    return SequenceSet(table.pdp, table.xy, table.rows(pos), pos, kind, float(threshold), table.extent)
+    return SequenceSet(
+        table.pdp, table.xy, table.rows(pos), pos, kind, float(threshold), table.extent, table.streets
+    )
+
+
+def street_lines(dataset: Any) -> np.ndarray | None:
+    """Street centre lines ``(e, 2, 2)`` metres of a data set's scene within its grid, where its
+    vehicles keep to them: the network :class:`mmwsim.trajectories.StreetNetwork` derives from
+    the free space (or the scene's own street lines, e.g. OpenStreetMap's) at the street half
+    width its trajectories were generated with. None where the data set has no scene, its scene
+    no street wide enough for a vehicle, or its stored trajectories say that their vehicles
+    went anywhere (``mmwsim trajectories`` without ``--streets``)."""
+    from mmwsim.errors import MmwsimError
+    from mmwsim.trajectories import list_splits, read_trajectories
+    from mmwsim.trajectories.streets import StreetNetwork
+
+    scene_of = getattr(dataset, "scene", None)
+    if scene_of is None:
+        return None
+    try:
+        splits = list_splits(dataset)
+        attrs = read_trajectories(dataset, splits[0]).attrs if splits else {}
+        if not attrs.get("vehicles_on_streets", True):
+            return None
+        half_width = float(attrs.get("street_half_width", STREET_HALF_WIDTH))
+        net = StreetNetwork.from_scene(scene_of(), half_width, bounds=dataset.grid.bounds)
+    except (MmwsimError, OSError, ValueError, TypeError):
+        return None
+    return net.lines()
 
 
 def dataset_threshold(dataset: Any) -> float:

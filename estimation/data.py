@@ -75,6 +75,9 @@ class SequenceSet:
         Detection threshold of the fingerprint bits.
     extent : (2, 2) float ndarray, metres
         ``[[x_min, y_min], [x_max, y_max]]`` of the whole grid, used to normalise positions.
+    streets : (e, 2, 2) float64 ndarray, metres, optional
+        Street centre lines of the scene (segment end points), where it has any: the map whose
+        lanes ``tn-match`` prefers for fast users (:meth:`Estimator.attach`).
     """
 
     grid_pdp: torch.Tensor
@@ -84,6 +87,7 @@ class SequenceSet:
     kind: np.ndarray
     threshold: float
     extent: np.ndarray
+    streets: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n, L = self.index.shape
@@ -126,6 +130,7 @@ class SequenceSet:
             self.kind[rows],
             self.threshold,
             self.extent,
+            self.streets,
         )
 
     def crop(self, start: int, length: int) -> SequenceSet:
@@ -143,6 +148,7 @@ class SequenceSet:
             self.kind,
             self.threshold,
             self.extent,
+            self.streets,
         )
 
     def normaliser(self) -> Normaliser:

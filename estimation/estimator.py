@@ -203,6 +203,10 @@ class Estimator(nn.Module):
         Whether a grid-reading network's filter also weighs a broadened copy of the measured
         motion for users who do not move like the training users (default True; see
         :meth:`candidate_filter`).
+    street_lanes : bool
+        Whether a grid-reading network's lanes (where it expects fast users) come from the
+        street map of the data it is attached to, where that has one, instead of the place
+        table measured on the training trajectories (default True; see :meth:`attach`).
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
@@ -210,7 +214,10 @@ class Estimator(nn.Module):
         self.config, self.n_beams, self.n_bins, self.normaliser = config, n_beams, n_bins, normaliser
         self.matcher: FingerprintMatcher | None = None
         self.robust_motion = True
+        self.street_lanes = True
+        self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
+        self._lanes: tuple[bytes, tuple] | None = None  # (tables' and map's digest, lane copies)
         self.net = build_network(
             config.model,
             n_beams,
@@ -247,16 +254,22 @@ class Estimator(nn.Module):
         network chooses from. A no-op for the other networks; returns ``self``.
 
         ``sigma`` (dB) is the noise level that likelihood assumes, by default the training noise.
-        A receiver knows its noise figure, so evaluation attaches at the noise it evaluates."""
+        A receiver knows its noise figure, so evaluation attaches at the noise it evaluates.
+
+        Where ``data`` has a street map (``SequenceSet.streets``, a data set's scene), the
+        network's lanes are that map's (:meth:`CandidateTransformer.lane_tables`): vehicles are
+        expected on streets no training vehicle drove, e.g. in another region or city. Set
+        :attr:`street_lanes` to False to keep the lanes measured on the training trajectories."""
         if not self.uses_grid:
             return self
         if isinstance(data, SequenceSet):
-            pdp, xy, threshold = data.grid_pdp, data.grid_xy, data.threshold
+            pdp, xy, threshold, streets = data.grid_pdp, data.grid_xy, data.threshold, data.streets
         else:
             from .adapter import GridTable, dataset_threshold
 
             table = GridTable(data)
-            pdp, xy, threshold = table.pdp, table.xy, dataset_threshold(data)
+            pdp, xy, threshold, streets = table.pdp, table.xy, dataset_threshold(data), table.streets
+        self._streets = None if streets is None else (np.asarray(streets, dtype=np.float64), xy)
         sigma = self.config.sigma if sigma is None else float(sigma)
         if self.matcher is None or self.matcher.grid_pdp is not pdp or self.matcher.sigma != sigma:
             if pdp.shape[1:] != (self.n_beams, self.n_bins):
@@ -295,17 +308,36 @@ class Estimator(nn.Module):
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
         step = float(net.grid_step)
         alternative = self._broadened_motion() if (self.robust_motion if robust is None else robust) else None
-        return CandidateFilter(net.motion, net.motion_fine, step, net.k, alternative=alternative)
+        return CandidateFilter(*self._lane_motion(), step, net.k, alternative=alternative)
 
-    def _broadened_motion(self) -> tuple[MotionTable, MotionTable | None]:
-        """The motion tables' broadened copies, made again only when the tables change (a
-        filter is made per batch in training and evaluation)."""
+    def _tables_digest(self, *extra: np.ndarray) -> bytes:
+        """Digest of the motion tables (and ``extra`` arrays): the key of the copies made of them."""
         net = self.net
         digest = hashlib.sha1(str(float(net.grid_step)).encode())
         for table in (net.motion, net.motion_fine):
             for t in (table.fitted, table.speed_edges, table.log_step_table, table.log_accel_table):
                 digest.update(t.numpy().tobytes())
-        key = digest.digest()
+        for t in (net.motion.place_speed, net.motion.log_place, *extra):
+            digest.update(np.ascontiguousarray(t).tobytes())
+        return digest.digest()
+
+    def _lane_motion(self) -> tuple[MotionTable, MotionTable]:
+        """The motion tables the filter uses: the network's, with the attached data's street map
+        as their place tables where it has one (and the tables have a measured place table to
+        replace), made again only when the tables or the map change."""
+        net = self.net
+        if self._streets is None or not self.street_lanes or not net.motion.has_place:
+            return net.motion, net.motion_fine
+        key = self._tables_digest(*self._streets)
+        if self._lanes is None or self._lanes[0] != key:
+            self._lanes = (key, net.lane_tables(*self._streets))
+        return self._lanes[1]
+
+    def _broadened_motion(self) -> tuple[MotionTable, MotionTable | None]:
+        """The motion tables' broadened copies, made again only when the tables change (a
+        filter is made per batch in training and evaluation)."""
+        net = self.net
+        key = self._tables_digest()
         if self._broadened is None or self._broadened[0] != key:
             step = float(net.grid_step)
             fine = net.motion_fine.broadened(unit=step) if bool(net.motion_fine.fitted) else None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -232,6 +233,63 @@ def test_place_table_keeps_fast_users_in_their_lanes_and_leaves_slow_ones_alone(
         MotionTable().fit_place(np.zeros((3, 1, 2)), (0, 0), 1.0, (4, 4))
     with pytest.raises(ValueError, match="NaN"):
         MotionTable().fit_place(np.full((3, 4, 2), np.nan), (0, 0), 1.0, (4, 4))
+
+
+def test_place_table_from_street_lines_is_the_lane_of_drivers_spread_along_them():
+    # 20 m of centre line along y = 2 over 100 cells users can be in: on average 0.2 m of line per
+    # cell, a full cell on the line holds 1 m, the end cells half that
+    line = np.array([[[0.0, 2.0], [20.0, 2.0]]])
+    table = MotionTable().fit_place_lines(
+        line, (-0.5, -0.5), 1.0, (30, 8), visited=100, speed=1.0, floor=0.25, smooth=0.0
+    )
+    assert table.has_place and float(table.place_speed) == 1.0
+    at = torch.tensor([[10.0, 2.0], [0.2, 2.0], [10.0, 5.0], [10.0, 2.6]])
+    r = table.log_place_ratio(torch.tensor([3.0, 0.0]), at).double()
+    expect = [math.log((m + 0.25 * 0.2) / (1.25 * 0.2)) for m in (1.0, 0.5, 0.0, 0.0)]
+    assert torch.allclose(r, torch.tensor(expect, dtype=torch.float64), atol=2e-3)
+    assert torch.equal(table.log_place_ratio(torch.tensor([0.5, 0.0]), at), torch.zeros(4))
+    # a diagonal line counts its length per cell, smoothed as the measured tables are
+    diag = MotionTable().fit_place_lines(
+        np.array([[[0.0, 0.0], [10.0, 10.0]]]), (-0.5, -0.5), 1.0, (12, 12), 144
+    )
+    on, off = diag.log_place_ratio(torch.tensor([6.0, 0.0]), torch.tensor([[5.0, 5.0], [5.0, 0.0]]))
+    assert float(on) > 1.0 and float(off) == pytest.approx(math.log(3 / 4), abs=2e-3)
+    for bad, match in ((np.zeros((1, 3, 2)), "shape"), (np.full((1, 2, 2), np.nan), "NaN")):
+        with pytest.raises(ValueError, match=match):
+            MotionTable().fit_place_lines(bad, (0, 0), 1.0, (4, 4), 16)
+    with pytest.raises(ValueError, match="visited"):
+        MotionTable().fit_place_lines(line, (0, 0), 1.0, (4, 4), 0)
+
+
+def test_an_attached_street_map_gives_lanes_where_no_training_user_drove():
+    tr = toy_sequence_set(128, 5, seed=1)
+    cfg = TrainConfig(model="tn-match", options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, tr.n_beams, tr.n_bins, tr.normaliser())
+    est.net.fit_motion(tr.positions, tr.grid_xy, tr.index)
+    net = est.net
+    assert est.attach(tr)._lane_motion() == (net.motion, net.motion_fine)  # no map: measured lanes
+    street = np.array([[[0.0, 20.0], [31.0, 20.0]]])
+    est.attach(dataclasses.replace(tr, streets=street))
+    cells, fine = est._lane_motion()
+    assert est._lane_motion()[0] is cells  # made once per map and set of tables
+    fast = torch.tensor([6.0, 0.0])
+    on, off = cells.log_place_ratio(fast, torch.tensor([[12.0, 20.0], [12.0, 5.0]]))
+    assert float(on) > 1.0 and float(off) == pytest.approx(math.log(3 / 4), abs=2e-3)
+    on, off = fine.log_place_ratio(fast, torch.tensor([[12.0, 20.0], [12.0, 5.0]]))  # grid units (1 m)
+    assert float(on) > 1.0 and float(off) == pytest.approx(math.log(3 / 4), abs=2e-3)
+    # only the place tables are the map's; the motion is the measured one
+    assert torch.equal(cells.log_accel_table, net.motion.log_accel_table)
+    assert torch.equal(fine.log_step_table, net.motion_fine.log_step_table)
+    assert not torch.equal(cells.log_place, net.motion.log_place)
+    # the filter reads them
+    used = est.candidate_filter(robust=False)._models[0]
+    assert np.array_equal(used.cells.m.place[1], cells.log_place.float().numpy())
+    assert np.array_equal(used.fine.m.place[1], fine.log_place.float().numpy())
+    est.street_lanes = False
+    assert est._lane_motion() == (net.motion, net.motion_fine)
+    est.street_lanes = True
+    net.motion.drop_place()  # a model trained without place tables keeps none
+    assert est._lane_motion() == (net.motion, net.motion_fine)
 
 
 def test_velocity_posterior_follows_the_straight_line_a_random_walk_cannot_tell():

@@ -174,3 +174,30 @@ def test_refusals(made, tmp_path, capsys):
     assert main(["trajectories", str(store), "--scene", "ground_only", "--pedestrian", "3"]) == 2
     assert "not the one this data set was generated from" in capsys.readouterr().err
     assert list_splits(store) == list(SPLITS)
+
+
+def test_splits_carry_the_scenes_street_map_where_vehicles_keep_to_it(made, tmp_path):
+    from estimation.adapter import GridTable, load_splits, street_lines
+    from mmwsim.trajectories.streets import StreetNetwork
+
+    # these trajectories' vehicles went anywhere (no --streets): no map
+    ds = Dataset.open(made[0])
+    assert street_lines(ds) is None and GridTable(ds).streets is None
+    assert street_lines(object()) is None  # nor for data without a scene
+    store = tmp_path / "d.zarr"
+    shutil.copytree(made[0], store)
+    shutil.rmtree(store / "trajectories")
+    assert main(["trajectories", str(store), "--vehicle", "10", "--length", "5", "--streets"]) == 0
+    ds = Dataset.open(store)
+    sets, _ = load_splits(store, ("train", "test"), dataset=ds)
+    lines = StreetNetwork.from_scene(ds.scene(), bounds=ds.grid.bounds).lines()
+    for s in sets.values():
+        assert np.array_equal(s.streets, lines)
+        assert s.subset([0]).streets is s.streets and s.crop(1, 3).streets is s.streets
+    assert np.array_equal(GridTable(ds).streets, lines)
+    # the map is the one the generator's vehicles drove: their positions lie on its centre lines
+    cars = read_trajectories(ds, "train").positions.reshape(-1, 2)
+    a, b = lines[:, 0], lines[:, 1]
+    f = np.clip(((cars[:, None] - a) * (b - a)).sum(-1) / ((b - a) ** 2).sum(-1), 0, 1)
+    gap = np.linalg.norm(cars[:, None] - (a + f[..., None] * (b - a)), axis=-1).min(1)
+    assert len(cars) and gap.max() < 1e-6

@@ -26,6 +26,7 @@ good forecasts.
 
 from __future__ import annotations
 
+import copy
 import warnings
 
 import numpy as np
@@ -40,6 +41,15 @@ from .embedding import sinusoidal_encoding
 __all__ = ["CandidateTransformer"]
 
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
+
+
+def _grid_frame(grid_xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """The first grid point ``(2,)`` metres, the spacing (metres) and the grid points per axis
+    ``(2,)`` of the grid holding ``grid_xy (G, 2)``."""
+    steps = np.diff(np.unique(grid_xy[:, 0]))
+    spacing = float(steps.min()) if len(steps) else 1.0
+    lo = grid_xy.min(0)
+    return lo, spacing, np.rint((grid_xy.max(0) - lo) / spacing).astype(int) + 1
 
 
 class CandidateTransformer(nn.Module):
@@ -111,10 +121,7 @@ class CandidateTransformer(nn.Module):
         to the lattice of :func:`subcell_mean`. Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
-        steps = np.diff(np.unique(grid_xy[:, 0]))
-        spacing = float(steps.min()) if len(steps) else 1.0
-        lo = grid_xy.min(0)
-        cells = np.rint((grid_xy.max(0) - lo) / spacing).astype(int) + 1  # grid points per axis
+        lo, spacing, cells = _grid_frame(grid_xy)
         on_grid = lo + np.rint((p - lo) / spacing) * spacing if index is None else grid_xy[index]
         self.motion.fit(on_grid)
         u = snap_to_lattice((p - lo) / spacing)  # grid units from the first grid point
@@ -133,6 +140,27 @@ class CandidateTransformer(nn.Module):
             self.motion_fine.drop_place()
         self.grid_step.fill_(spacing)
         return self
+
+    def lane_tables(self, lines: np.ndarray, grid_xy: np.ndarray) -> tuple[MotionTable, MotionTable]:
+        """Copies of both smoothers' motion tables whose place tables are a street map's lanes
+        (:meth:`MotionTable.fit_place_lines`) instead of the measured ones: street centre lines
+        ``lines (e, 2, 2)`` metres over the grid points ``grid_xy (G, 2)`` metres users can be
+        at. The copies keep the measured motion; they are the tables' place part on the same
+        grid, lattice and speeds as :meth:`fit_motion`'s."""
+        grid_xy = np.asarray(grid_xy, dtype=np.float64)
+        lines = np.asarray(lines, dtype=np.float64)
+        lo, spacing, cells = _grid_frame(grid_xy)
+        cell, fine = copy.deepcopy(self.motion), copy.deepcopy(self.motion_fine)
+        cell.fit_place_lines(lines, lo - spacing / 2, spacing, tuple(cells), len(grid_xy))
+        fine.fit_place_lines(
+            lines / spacing,
+            lo / spacing - 0.5,
+            1.0 / SUBCELLS,
+            tuple(cells * SUBCELLS),
+            len(grid_xy) * SUBCELLS**2,
+            PLACE_SPEED / spacing,
+        )
+        return cell, fine
 
     def smoothed(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:
         """The classical estimate ``(B, T, 2)`` metres when features come without it (the online

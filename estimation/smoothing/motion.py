@@ -188,8 +188,6 @@ class MotionTable(nn.Module):
         ``(h + floor u) / ((1 + floor) u)`` against their flat density ``u`` over the cells any
         user visited: above 1 in lanes, ``floor / (1 + floor)`` where none went. Returns ``self``.
         """
-        from scipy.ndimage import gaussian_filter
-
         p = np.asarray(positions, dtype=np.float64)
         if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2 or not len(p):
             raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
@@ -206,10 +204,66 @@ class MotionTable(nn.Module):
         ij = np.floor((p.reshape(-1, 2) - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
         ok = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
         visited = max(len(np.unique(ij[ok, 0] * W + ij[ok, 1])), 1)
+        return self._set_place(ij[ok & fast], visited, origin, res, (H, W), speed, floor, smooth)
+
+    @torch.no_grad()
+    def fit_place_lines(
+        self,
+        lines: np.ndarray,
+        origin: np.ndarray,
+        res: float,
+        shape: tuple[int, int],
+        visited: int,
+        speed: float = PLACE_SPEED,
+        floor: float = PLACE_FLOOR,
+        smooth: float = 0.5,
+    ) -> MotionTable:
+        """The place table of users faster than ``speed`` who drive along street centre lines
+        ``lines (e, 2, 2)`` (segment end points, the table's units) uniformly: a map's lanes in
+        place of measured ones, so they hold where no training user went (:meth:`fit_place`,
+        with the fast users' histogram the length of centre line per table cell). ``visited`` is
+        the number of table cells users can be in (the flat density's support). Returns ``self``.
+        """
+        seg = np.asarray(lines, dtype=np.float64)
+        if seg.ndim != 3 or seg.shape[1:] != (2, 2) or not len(seg):
+            raise ValueError(f"need street lines of shape (e >= 1, 2, 2), got {seg.shape}")
+        if not np.isfinite(seg).all():
+            raise ValueError("street lines hold NaN or infinite values")
+        H, W = (int(v) for v in shape)
+        if H < 1 or W < 1 or not res > 0 or not floor > 0 or not speed >= 0 or visited < 1:
+            raise ValueError(
+                f"need a positive table shape, resolution, floor and visited count and a speed >= 0, got "
+                f"{shape}, {res}, {floor}, {visited}, {speed}"
+            )
+        # Points every tenth of a cell along every segment: each cell's count is its length of line.
+        length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
+        n = np.maximum(np.ceil(length / (0.1 * res)).astype(np.int64), 1)
+        which = np.repeat(np.arange(len(seg)), n)
+        t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[which]
+        pts = seg[which, 0] + t[:, None] * (seg[which, 1] - seg[which, 0])
+        ij = np.floor((pts - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
+        return self._set_place(ij[ok], int(visited), origin, res, (H, W), speed, floor, smooth)
+
+    def _set_place(
+        self,
+        f: np.ndarray,
+        visited: int,
+        origin: np.ndarray,
+        res: float,
+        shape: tuple[int, int],
+        speed: float,
+        floor: float,
+        smooth: float,
+    ) -> MotionTable:
+        """The place table from the table cells ``f (n, 2)`` int of fast users (see
+        :meth:`fit_place`) over ``visited`` cells."""
+        from scipy.ndimage import gaussian_filter
+
+        H, W = shape
         # Histogram and smoothing over the fast users' box (and the smoothing's reach) only, and the
         # table kept over the cells they reach plus a border where none went, which lookups outside
         # clamp to: a city's lanes need not cost arrays of the whole area.
-        f = ij[ok & fast]
         reach = int(np.ceil(4 * smooth)) + 1
         r0, c0 = np.maximum(f.min(0) - reach, 0) if len(f) else (0, 0)
         r1, c1 = np.minimum(f.max(0) + reach + 1, (H, W)) if len(f) else (1, 1)

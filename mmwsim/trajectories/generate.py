@@ -21,7 +21,7 @@ from ..geometry.freespace import CoverageMask, FreeSpace, scene_obstacles
 from ..limits import check_fits
 from .errors import TrajectoryError
 from .motion import AVOID, KINDS, MOTION_MODELS, NONE, ROAD, SPEED, STOP, TURN, MotionModel, motion_model
-from .streets import StreetNetwork
+from .streets import STREET_HALF_WIDTH, StreetNetwork
 from .trajectories import Trajectories
 
 if TYPE_CHECKING:
@@ -231,7 +231,7 @@ def generate(
     coverage: CoverageMask | None = None,
     vehicles_on_streets: bool = False,
     models: dict[str, MotionModel] | None = None,
-    street_half_width: float = 4.0,
+    street_half_width: float = STREET_HALF_WIDTH,
     free_space_bounds: np.ndarray | None = None,
 ) -> Trajectories:
     """Generate trajectories of several kinds, reproducibly.

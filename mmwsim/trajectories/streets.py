@@ -18,7 +18,9 @@ from scipy.sparse.csgraph import connected_components
 
 from .errors import TrajectoryError
 
-__all__ = ["StreetNetwork"]
+__all__ = ["STREET_HALF_WIDTH", "StreetNetwork"]
+
+STREET_HALF_WIDTH = 4.0  # metres of clearance a centre line keeps from the buildings, by default
 
 
 class StreetNetwork:
@@ -62,7 +64,7 @@ class StreetNetwork:
         cls,
         footprints: list[shapely.Polygon],
         bounds: np.ndarray,
-        half_width: float = 4.0,
+        half_width: float = STREET_HALF_WIDTH,
         spacing: float = 2.0,
         spur_length: float = 20.0,
         simplify: float = 0.3,
@@ -108,7 +110,7 @@ class StreetNetwork:
 
     @classmethod
     def from_scene(
-        cls, scene, half_width: float = 4.0, bounds: np.ndarray | None = None, **kw
+        cls, scene, half_width: float = STREET_HALF_WIDTH, bounds: np.ndarray | None = None, **kw
     ) -> StreetNetwork:
         """Network of ``scene`` within ``bounds`` (default its receiver-grid bounds).
 
@@ -128,7 +130,7 @@ class StreetNetwork:
         lines: list[np.ndarray],
         footprints: list[shapely.Polygon],
         bounds: np.ndarray,
-        half_width: float = 4.0,
+        half_width: float = STREET_HALF_WIDTH,
     ) -> StreetNetwork:
         """Network of given centre lines (ways meeting at shared vertices connect there).
 

@@ -140,7 +140,7 @@ def street_lines(dataset: Any) -> np.ndarray | None:
     no street wide enough for a vehicle, or its stored trajectories say that their vehicles
     went anywhere (``mmwsim trajectories`` without ``--streets``)."""
     from mmwsim.errors import MmwsimError
-    from mmwsim.trajectories import list_splits, read_trajectories
+    from mmwsim.trajectories import list_splits, split_attrs
     from mmwsim.trajectories.streets import StreetNetwork
 
     scene_of = getattr(dataset, "scene", None)
@@ -148,7 +148,7 @@ def street_lines(dataset: Any) -> np.ndarray | None:
         return None
     try:
         splits = list_splits(dataset)
-        attrs = read_trajectories(dataset, splits[0]).attrs if splits else {}
+        attrs = split_attrs(dataset, splits[0]) if splits else {}
         if not attrs.get("vehicles_on_streets", True):
             return None
         half_width = float(attrs.get("street_half_width", STREET_HALF_WIDTH))

@@ -19,6 +19,7 @@ from mmwsim.trajectories import (
     TrajectoryError,
     list_splits,
     read_trajectories,
+    split_attrs,
     write_trajectories,
 )
 from tests.helpers.rrd import check_blueprint, entity_rows
@@ -182,6 +183,8 @@ def test_splits_carry_the_scenes_street_map_where_vehicles_keep_to_it(made, tmp_
 
     # these trajectories' vehicles went anywhere (no --streets): no map
     ds = Dataset.open(made[0])
+    assert split_attrs(ds, "train") == read_trajectories(ds, "train").attrs
+    assert not split_attrs(ds, "train")["vehicles_on_streets"]
     assert street_lines(ds) is None and GridTable(ds).streets is None
     assert street_lines(object()) is None  # nor for data without a scene
     store = tmp_path / "d.zarr"

@@ -22,7 +22,7 @@ from .motion import EVENT_NAMES, KINDS, MOTION_MODELS, Kind, MotionModel, motion
 from .record import log_trajectories
 from .sequences import SequenceLoader, pdp_sequences
 from .splits import SPLITS, BlockFolds, block_folds, split, touches_region
-from .store import is_trajectory_store, list_splits, read_trajectories, write_trajectories
+from .store import is_trajectory_store, list_splits, read_trajectories, split_attrs, write_trajectories
 from .streets import StreetNetwork
 from .trajectories import Trajectories
 
@@ -50,6 +50,7 @@ __all__ = [
     "motion_model",
     "pdp_sequences",
     "read_trajectories",
+    "split_attrs",
     "split",
     "touches_region",
     "write_trajectories",

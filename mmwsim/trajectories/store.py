@@ -204,6 +204,22 @@ def list_splits(store: Store) -> list[str]:
     return names
 
 
+def _split_dir(store: Store, split: str) -> Path:
+    root = store_root(store)
+    names = list_splits(root)
+    if split not in names:
+        have = ", ".join(names) if names else "none"
+        raise TrajectoryError(f"{root}: no trajectory split {split!r} (stored: {have})")
+    return resolve_dir(root / GROUP) / split
+
+
+def split_attrs(store: Store, split: str) -> dict[str, Any]:
+    """The attributes of one stored split (how it was generated), without reading its arrays."""
+    where = _split_dir(store, split)
+    with reading(where, "trajectory split"):
+        return dict(zarr.open_group(where, mode="r").attrs)
+
+
 def read_trajectories(store: Store, split: str) -> Trajectories:
     """Read one split back.
 
@@ -212,11 +228,7 @@ def read_trajectories(store: Store, split: str) -> Trajectories:
     Trajectories
     """
     root = store_root(store)
-    names = list_splits(root)
-    if split not in names:
-        have = ", ".join(names) if names else "none"
-        raise TrajectoryError(f"{root}: no trajectory split {split!r} (stored: {have})")
-    where = resolve_dir(root / GROUP) / split
+    where = _split_dir(store, split)
     with reading(where, "trajectory split"):
         g = zarr.open_group(where, mode="r")
         arrays = {k: np.asarray(g[k][...]) for k in _ARRAYS}

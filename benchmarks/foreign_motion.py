@@ -91,6 +91,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="without the broadened alternative motion (Estimator.robust_motion = False)",
     )
+    ap.add_argument(
+        "--measured-lanes",
+        action="store_true",
+        help="lanes measured on the training trajectories, not the street map (Estimator.street_lanes = False)",
+    )
     args = ap.parse_args(argv)
 
     import torch
@@ -104,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     ds = Dataset.open(args.dataset)
     est = Estimator.load(args.run).attach(ds, sigma=args.noise)
     est.robust_motion = not args.measured_motion_only
+    est.street_lanes = not args.measured_lanes
     fs = FreeSpace.from_scene(
         ds.scene(), clearance=0.5, coverage=CoverageMask.from_dataset(ds), bounds=ds.grid.bounds
     )

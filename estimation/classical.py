@@ -119,8 +119,8 @@ class MatchSmoother:
 
     def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``bits (n, T, M, N_s)`` -> candidates ``xy (n, T, search, 2)`` metres and their
-        log-likelihoods ``(n, T, search)``."""
-        return self.matcher.candidate_points(bits, self.n_search)
+        log-likelihoods ``(n, T, search)`` (:meth:`FingerprintMatcher.track_candidates`)."""
+        return self.matcher.track_candidates(bits, self.n_search)[:2]
 
     def filter(self, xy: torch.Tensor, score: torch.Tensor) -> CandidateFilter:
         """The candidate filter run forward over :meth:`search`'s candidates ``xy (n, T, search,

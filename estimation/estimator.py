@@ -283,13 +283,22 @@ class Estimator(nn.Module):
 
     def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """A grid-reading network's per-step candidates for ``bits (B, T, M, N_s)``: the matcher's
-        most likely grid points ``xy (B, T, K, 2)`` metres with their log-likelihoods ``(B, T, K)``.
-        Each step's are its own, so the candidates of a sequence's prefix are a prefix of these."""
+        most likely grid points ``xy (B, T, K, 2)`` metres with their log-likelihoods ``(B, T, K)``
+        (:meth:`FingerprintMatcher.track_candidates`: near where the steps before lead where a
+        fingerprint says little). A step's depend on the steps before it only, so the candidates
+        of a sequence's prefix are a prefix of these."""
+        return self._search(bits)[:2]
+
+    def _search(
+        self, bits: torch.Tensor, refs: np.ndarray | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+        """:meth:`search` continuing from ``refs`` (see :meth:`FingerprintMatcher.track_candidates`),
+        and the references to continue from."""
         if self.matcher is None:
             raise EstimationError(
                 f"{self.name} reads the data set's grid: call attach(dataset) before predicting"
             )
-        return self.matcher.candidate_points(bits, self.net.search)
+        return self.matcher.track_candidates(bits, self.net.search, refs)
 
     def candidate_filter(self, robust: bool | None = None) -> CandidateFilter:
         """A fresh online filter over the grid's match candidates with the network's motion
@@ -455,6 +464,7 @@ class OnlineTracker:
         self.est = estimator
         self.filter = estimator.candidate_filter() if estimator.uses_grid else None
         self._bits: list[torch.Tensor] = []
+        self._refs: np.ndarray | None = None  # the search's best candidates of the last two steps
 
     @property
     def steps(self) -> int:
@@ -475,7 +485,7 @@ class OnlineTracker:
         self._bits.append(bits)
         if self.filter is None:
             return self.est.predict(torch.stack(self._bits, 1).float())[:, -1].double().numpy()
-        xy, score = self.est.search(bits[:, None].float())
+        xy, score, self._refs = self.est._search(bits[:, None].float(), self._refs)
         return self.filter.update(xy[:, 0], score[:, 0])
 
     def track(self) -> torch.Tensor:

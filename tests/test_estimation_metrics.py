@@ -94,6 +94,38 @@ def test_matcher_finds_the_right_grid_point():
     assert np.array_equal(m2.match(noisy), m.match(noisy))
 
 
+def test_track_candidates_look_where_the_user_goes_when_a_fingerprint_says_nothing():
+    # 40 x 40 points 1 m apart; only the strip x < 5 has signal (every point its own bins), the
+    # rest none: an empty fingerprint there is equally likely at 1400 points
+    g = np.arange(40.0)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pdp = np.full((len(xy), 1, 200), -np.inf, dtype=np.float32)
+    lit = np.flatnonzero(xy[:, 0] < 5)
+    pdp[lit, 0, np.arange(len(lit))] = -100.0
+    m = FingerprintMatcher(torch.from_numpy(pdp), xy, sigma=3.0, threshold=-115.0)
+    # a user at 2 m per step along y = 20: three steps in the strip, then two without signal
+    path = np.stack([np.arange(0.0, 10.0, 2.0), np.full(5, 20.0)], -1)
+    rows = [int(np.flatnonzero((xy == p).all(1))[0]) for p in path]
+    bits = torch.from_numpy(pdp[rows] >= -115.0).float()[None]
+    xy_g, score_g, refs = m.track_candidates(bits, 8)
+    xy_p, score_p = m.candidate_points(bits, 8)
+    near = lambda c, t: float(np.linalg.norm(c[0, t].numpy() - path[t], axis=-1).min())  # noqa: E731
+    # the informative steps keep their most likely points; the empty ones look where the user
+    # goes, which the plain top 8 of 1400 ties do not
+    assert torch.equal(xy_g[:, :3], xy_p[:, :3]) and torch.equal(score_g[:, :3], score_p[:, :3])
+    assert near(xy_g, 3) == 0.0 and near(xy_g, 4) == 0.0
+    assert near(xy_p, 3) > 5.0
+    # the scores are the plain log-likelihoods of the points chosen
+    chosen = [int(np.flatnonzero((xy == c).all(1))[0]) for c in xy_g[0, 3].numpy()]
+    assert torch.allclose(score_g[0, 3], m.scores(bits[:, 3])[0, chosen])
+    # a prefix's candidates are a prefix of the whole's, and a step at a time continues exactly
+    one = m.track_candidates(bits[:, :4], 8)
+    assert torch.equal(one[0], xy_g[:, :4]) and torch.equal(one[1], score_g[:, :4])
+    step = m.track_candidates(bits[:, 4:], 8, one[2])
+    assert torch.equal(step[0], xy_g[:, 4:]) and np.array_equal(step[2], refs)
+    assert np.array_equal(refs[0], path[3:])
+
+
 class _Offset:
     """A fake method that knows the truth and adds a fixed offset: RMSE is exactly |offset|."""
 

@@ -136,7 +136,7 @@ def street_lines(dataset: Any) -> np.ndarray | None:
     """Street centre lines ``(e, 2, 2)`` metres of a data set's scene within its grid, where its
     vehicles keep to them: the network :class:`mmwsim.trajectories.StreetNetwork` derives from
     the free space (or the scene's own street lines, e.g. OpenStreetMap's) at the street half
-    width its trajectories were generated with. None where the data set has no scene, its scene
+    width and within the bounds its trajectories were generated with. None where the data set has no scene, its scene
     no street wide enough for a vehicle, or its stored trajectories say that their vehicles
     went anywhere (``mmwsim trajectories`` without ``--streets``)."""
     from mmwsim.errors import MmwsimError
@@ -152,7 +152,8 @@ def street_lines(dataset: Any) -> np.ndarray | None:
         if not attrs.get("vehicles_on_streets", True):
             return None
         half_width = float(attrs.get("street_half_width", STREET_HALF_WIDTH))
-        net = StreetNetwork.from_scene(scene_of(), half_width, bounds=dataset.grid.bounds)
+        bounds = np.asarray(attrs.get("bounds") or dataset.grid.bounds, dtype=np.float64).reshape(2, 2)
+        net = StreetNetwork.from_scene(scene_of(), half_width, bounds=bounds)
     except (MmwsimError, OSError, ValueError, TypeError):
         return None
     return net.lines()

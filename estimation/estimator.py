@@ -326,7 +326,7 @@ class Estimator(nn.Module):
         for table in (net.motion, net.motion_fine):
             for t in (table.fitted, table.speed_edges, table.log_step_table, table.log_accel_table):
                 digest.update(t.numpy().tobytes())
-        for t in (net.motion.place_speed, net.motion.log_place, *extra):
+        for t in extra:
             digest.update(np.ascontiguousarray(t).tobytes())
         return digest.digest()
 

@@ -125,12 +125,6 @@ class FingerprintMatcher:
             return torch.zeros((*lead, k)), torch.zeros((*lead, k), dtype=torch.int64)
         return torch.cat(vals).reshape(*lead, k), torch.cat(rows).reshape(*lead, k)
 
-    def candidate_points(self, bits: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`candidates` as positions: ``xy (..., k, 2)`` float32 metres and their
-        log-likelihoods ``(..., k)``."""
-        score, rows = self.candidates(bits, k)
-        return torch.from_numpy(self.grid_xy[rows.numpy()]).float(), score
-
     @torch.no_grad()
     def track_candidates(
         self, bits: torch.Tensor, k: int, refs: np.ndarray | None = None, block: int = 256
@@ -145,8 +139,8 @@ class FingerprintMatcher:
         steps before predict at constant velocity; the scores returned are the plain
         log-likelihoods, so what the smoothers weigh is unchanged. A fingerprint that tells its
         place (its ``k``-th most likely point more than ``log(1 + A)`` below its best) keeps its
-        ``k`` most likely points. A step's
-        candidates depend on the steps before it only: a prefix's are a prefix of these.
+        ``k`` most likely points. A step's candidates depend on the steps before it only: a
+        prefix's are a prefix of these.
 
         Parameters
         ----------

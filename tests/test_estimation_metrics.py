@@ -108,7 +108,8 @@ def test_track_candidates_look_where_the_user_goes_when_a_fingerprint_says_nothi
     rows = [int(np.flatnonzero((xy == p).all(1))[0]) for p in path]
     bits = torch.from_numpy(pdp[rows] >= -115.0).float()[None]
     xy_g, score_g, refs = m.track_candidates(bits, 8)
-    xy_p, score_p = m.candidate_points(bits, 8)
+    score_p, rows_p = m.candidates(bits, 8)  # the plain top 8
+    xy_p = torch.from_numpy(xy[rows_p.numpy()]).float()
     near = lambda c, t: float(np.linalg.norm(c[0, t].numpy() - path[t], axis=-1).min())  # noqa: E731
     # the informative steps keep their most likely points; the empty ones look where the user
     # goes, which the plain top 8 of 1400 ties do not

@@ -43,13 +43,17 @@ __all__ = ["CandidateTransformer"]
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 
 
-def _grid_frame(grid_xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """The first grid point ``(2,)`` metres, the spacing (metres) and the grid points per axis
-    ``(2,)`` of the grid holding ``grid_xy (G, 2)``."""
+def _place_frames(grid_xy: np.ndarray) -> tuple[np.ndarray, float, tuple, tuple]:
+    """The first grid point ``(2,)`` metres and the spacing (metres) of the grid holding
+    ``grid_xy (G, 2)``, and the place tables' frames ``(origin, res, shape)`` on it: the cell
+    table's (metres, one cell per grid point) and the sub-cell lattice table's (grid units)."""
     steps = np.diff(np.unique(grid_xy[:, 0]))
     spacing = float(steps.min()) if len(steps) else 1.0
     lo = grid_xy.min(0)
-    return lo, spacing, np.rint((grid_xy.max(0) - lo) / spacing).astype(int) + 1
+    cells = np.rint((grid_xy.max(0) - lo) / spacing).astype(int) + 1  # grid points per axis
+    cell = (lo - spacing / 2, spacing, tuple(cells))
+    fine = (lo / spacing - 0.5, 1.0 / SUBCELLS, tuple(cells * SUBCELLS))
+    return lo, spacing, cell, fine
 
 
 class CandidateTransformer(nn.Module):
@@ -121,20 +125,14 @@ class CandidateTransformer(nn.Module):
         to the lattice of :func:`subcell_mean`. Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
-        lo, spacing, cells = _grid_frame(grid_xy)
+        lo, spacing, cell, fine = _place_frames(grid_xy)
         on_grid = lo + np.rint((p - lo) / spacing) * spacing if index is None else grid_xy[index]
         self.motion.fit(on_grid)
         u = snap_to_lattice((p - lo) / spacing)  # grid units from the first grid point
         self.motion_fine.fit(u)
         if places:
-            self.motion.fit_place(on_grid, lo - spacing / 2, spacing, tuple(cells))
-            self.motion_fine.fit_place(
-                u + lo / spacing,
-                lo / spacing - 0.5,
-                1.0 / SUBCELLS,
-                tuple(cells * SUBCELLS),
-                PLACE_SPEED / spacing,
-            )
+            self.motion.fit_place(on_grid, *cell)
+            self.motion_fine.fit_place(u + lo / spacing, *fine, PLACE_SPEED / spacing)
         else:
             self.motion.drop_place()
             self.motion_fine.drop_place()
@@ -149,17 +147,10 @@ class CandidateTransformer(nn.Module):
         grid, lattice and speeds as :meth:`fit_motion`'s."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         lines = np.asarray(lines, dtype=np.float64)
-        lo, spacing, cells = _grid_frame(grid_xy)
+        _, spacing, cell_frame, fine_frame = _place_frames(grid_xy)
         cell, fine = copy.deepcopy(self.motion), copy.deepcopy(self.motion_fine)
-        cell.fit_place_lines(lines, lo - spacing / 2, spacing, tuple(cells), len(grid_xy))
-        fine.fit_place_lines(
-            lines / spacing,
-            lo / spacing - 0.5,
-            1.0 / SUBCELLS,
-            tuple(cells * SUBCELLS),
-            len(grid_xy) * SUBCELLS**2,
-            PLACE_SPEED / spacing,
-        )
+        cell.fit_place_lines(lines, *cell_frame, len(grid_xy))
+        fine.fit_place_lines(lines / spacing, *fine_frame, len(grid_xy) * SUBCELLS**2, PLACE_SPEED / spacing)
         return cell, fine
 
     def smoothed(self, xy: torch.Tensor, post: torch.Tensor) -> torch.Tensor:

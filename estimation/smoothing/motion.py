@@ -64,6 +64,21 @@ def snap_to_lattice(u: np.ndarray, n_sub: int = SUBCELLS) -> np.ndarray:
     return np.round(u * n_sub) / n_sub if n_sub % 2 else (np.floor(u * n_sub) + 0.5) / n_sub
 
 
+def _check_place(shape: tuple[int, int], res: float, floor: float, speed: float, visited: int = 1) -> None:
+    if min(int(v) for v in shape) < 1 or not res > 0 or not floor > 0 or not speed >= 0 or visited < 1:
+        raise ValueError(
+            f"need a positive table shape, resolution, floor and visited count and a speed >= 0, got "
+            f"{shape}, {res}, {floor}, {visited}, {speed}"
+        )
+
+
+def _table_cells(points: np.ndarray, origin: np.ndarray, res: float, shape: tuple[int, int]):
+    """Table cell ``(n, 2)`` int64 of every point ``(n, 2)`` of a table of ``shape`` cells of
+    ``res`` from ``origin``, and whether it lies in the table ``(n,)`` bool."""
+    ij = np.floor((points - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
+    return ij, ((ij >= 0) & (ij < np.asarray(shape, dtype=np.int64))).all(1)
+
+
 class MixtureMotion:
     """Hand-set motion model: first displacement ``N(0, first_step_sigma^2 I)``, acceleration the
     isotropic Gaussian mixture ``acceleration`` ((weight, sigma) pairs, m/step^2), independent of
@@ -193,18 +208,12 @@ class MotionTable(nn.Module):
             raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
         if not np.isfinite(p).all():
             raise ValueError("positions hold NaN or infinite values")
-        H, W = (int(v) for v in shape)
-        if H < 1 or W < 1 or not res > 0 or not floor > 0 or not speed >= 0:
-            raise ValueError(
-                f"need a positive table shape, resolution and floor and a speed >= 0, got {shape}, {res}, "
-                f"{floor}, {speed}"
-            )
+        _check_place(shape, res, floor, speed)
         step = np.linalg.norm(np.diff(p, axis=1), axis=-1)  # (n, L-1)
         fast = np.concatenate([step[:, :1], step], axis=1).ravel() > speed
-        ij = np.floor((p.reshape(-1, 2) - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
-        ok = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
-        visited = max(len(np.unique(ij[ok, 0] * W + ij[ok, 1])), 1)
-        return self._set_place(ij[ok & fast], visited, origin, res, (H, W), speed, floor, smooth)
+        ij, ok = _table_cells(p.reshape(-1, 2), origin, res, shape)
+        visited = max(len(np.unique(ij[ok, 0] * int(shape[1]) + ij[ok, 1])), 1)
+        return self._set_place(ij[ok & fast], visited, origin, res, shape, speed, floor, smooth)
 
     @torch.no_grad()
     def fit_place_lines(
@@ -229,21 +238,16 @@ class MotionTable(nn.Module):
             raise ValueError(f"need street lines of shape (e >= 1, 2, 2), got {seg.shape}")
         if not np.isfinite(seg).all():
             raise ValueError("street lines hold NaN or infinite values")
-        H, W = (int(v) for v in shape)
-        if H < 1 or W < 1 or not res > 0 or not floor > 0 or not speed >= 0 or visited < 1:
-            raise ValueError(
-                f"need a positive table shape, resolution, floor and visited count and a speed >= 0, got "
-                f"{shape}, {res}, {floor}, {visited}, {speed}"
-            )
+        _check_place(shape, res, floor, speed, visited)
         # Points every tenth of a cell along every segment: each cell's count is its length of line.
         length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
         n = np.maximum(np.ceil(length / (0.1 * res)).astype(np.int64), 1)
         which = np.repeat(np.arange(len(seg)), n)
         t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[which]
-        pts = seg[which, 0] + t[:, None] * (seg[which, 1] - seg[which, 0])
-        ij = np.floor((pts - np.asarray(origin, dtype=np.float64)) / res).astype(np.int64)
-        ok = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
-        return self._set_place(ij[ok], int(visited), origin, res, (H, W), speed, floor, smooth)
+        ij, ok = _table_cells(
+            seg[which, 0] + t[:, None] * (seg[which, 1] - seg[which, 0]), origin, res, shape
+        )
+        return self._set_place(ij[ok], visited, origin, res, shape, speed, floor, smooth)
 
     def _set_place(
         self,
@@ -260,7 +264,7 @@ class MotionTable(nn.Module):
         :meth:`fit_place`) over ``visited`` cells."""
         from scipy.ndimage import gaussian_filter
 
-        H, W = shape
+        H, W = (int(v) for v in shape)
         # Histogram and smoothing over the fast users' box (and the smoothing's reach) only, and the
         # table kept over the cells they reach plus a border where none went, which lookups outside
         # clamp to: a city's lanes need not cost arrays of the whole area.

@@ -222,7 +222,7 @@ class CandidateFilter:
 
     def update(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> np.ndarray:
         """Add one step: the matcher's candidates ``xy (B, S, 2)`` metres and their
-        log-likelihoods ``score (B, S)`` (as :meth:`FingerprintMatcher.candidate_points` gives
+        log-likelihoods ``score (B, S)`` (as :meth:`FingerprintMatcher.track_candidates` gives
         them). Returns the users' current positions ``(B, 2)`` float64 metres."""
         xy = np.asarray(xy, dtype=np.float64)
         lp = _log_softmax(np.asarray(score, dtype=np.float64))

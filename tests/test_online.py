@@ -45,7 +45,9 @@ PLACED = (
 @pytest.mark.parametrize("motion", [MOTION, PLACED], ids=["motion", "with-place"])
 def test_unpruned_beam_is_the_dense_constant_velocity_smoother(motion):
     xy, score = _candidates()
-    f = CandidateFilter(motion, k=10, beam=100).run(xy, score)  # 10 x 10 pairs: nothing pruned
+    f = CandidateFilter(motion, k=10, beam=100, vague_gate=None).run(
+        xy, score
+    )  # 10 x 10 pairs: nothing pruned
     kxy, post, _ = f.smooth()
     dense = velocity_posterior(kxy.double(), post[..., 0].double(), motion)
     assert torch.allclose(post[..., -1].double(), dense.clamp(min=-30), atol=1e-4)
@@ -75,7 +77,9 @@ def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
         lattice.fit_place(snap_to_lattice(_tracks()), (-60.5, -60.5), 1 / 3, (363, 363), speed=3.0)
     xy, score = _candidates(B=2, T=4, S=4)
     xy = torch.round(xy)  # grid points of a 1 m grid
-    f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36).run(xy, score)
+    f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36, vague_gate=None).run(
+        xy, score
+    )
     kxy, post, fine = f.smooth()
     # every cell split into its 3 x 3 lattice points, each with its cell's likelihood
     sxy = (kxy.double()[:, :, :, None] + torch.tensor(f._offsets)).reshape(2, 4, 36, 2)
@@ -206,3 +210,57 @@ def test_the_evidence_picks_the_motion_a_user_follows():
         else:
             assert w_alt > 0.9 and err["both"] < 0.6 * err["alone"]
         assert err["both"] <= 1.02 * min(err["alone"], err["broad"]), (name, err)
+
+
+def test_vague_steps_far_off_the_track_go_onto_it():
+    """A step whose fingerprint says little and whose estimate is far off the track of the
+    informative steps around it is put on that track: extrapolated back before the first,
+    interpolated between two, extrapolated on after the last; near ones, informative ones and
+    users without an informative step are kept."""
+    from estimation.smoothing.online import VAGUE_GATE, _vague_shift
+
+    line = np.stack([5.0 * np.arange(7), np.zeros(7)], -1)  # 5 m per step along x
+    pos = np.repeat(line[None], 5, 0)
+    vague = np.zeros((5, 7), bool)
+    pos[0, 0] += (200.0, 90.0)  # vague first step far away
+    vague[0, 0] = True
+    pos[1, 3] += (0.0, 60.0)  # vague middle step, with a vague neighbour
+    vague[1, 2:4] = True
+    pos[2, 6] += (-80.0, 0.0)  # vague last step
+    vague[2, 6] = True
+    pos[3, 2] += (0.0, 0.9 * (VAGUE_GATE + 5.0))  # vague but within reach of step 1: kept
+    vague[3, 2] = True
+    pos[3, 4] += (0.0, 70.0)  # far but informative: kept
+    pos[4] += (0.0, 40.0) * (np.arange(7) % 2)[:, None]  # nothing informative: kept
+    vague[4] = True
+    turn = np.concatenate([line[:4], line[3] + 5.0 * np.stack([np.zeros(3), np.arange(1, 4)], -1)])
+    pos = np.concatenate([pos, turn[None]])  # a right-angle turn at a vague step 3: reachable, kept
+    vague = np.concatenate([vague, np.isin(np.arange(7), [3, 4])[None]])
+    out = pos + _vague_shift(pos, vague)
+    np.testing.assert_allclose(out[0], line, atol=1e-12)
+    # steps 1 and 4 anchor steps 2 and 3 at constant velocity between them
+    np.testing.assert_allclose(out[1], line, atol=1e-12)
+    np.testing.assert_allclose(out[2], line, atol=1e-12)
+    np.testing.assert_array_equal(out[3:], pos[3:])
+
+
+def test_the_filter_puts_a_vague_first_step_where_the_steps_after_it_lead():
+    """An empty first fingerprint: every candidate alike likely and all 200 m away (the matcher
+    had no step before to look near). The smoothed estimate of that step is the track's
+    extrapolation, its candidates move with it, and a prefix of that step alone is left as is."""
+    B, T, S = 2, 6, 10
+    true = np.stack([np.stack([4.0 * np.arange(T), 1.5 * np.arange(T)], -1)] * B)
+    xy, score = _candidates(B=B, T=T, S=S, seed=3, true=true)
+    xy, score = xy.clone(), score.clone()
+    xy[:, 0] = torch.from_numpy(true[:, 0] + (150.0, 130.0))[:, None].float() + torch.randn(B, S, 2)
+    score[:, 1:] *= 10.0  # informative: tens of nats between the best and the rest
+    score[:, 0] = -0.1 * torch.arange(S, dtype=torch.float32)  # within the vague span
+    f = CandidateFilter(MOTION, k=S, beam=50).run(xy, score)
+    kxy, _, fine = f.smooth()
+    # extrapolated from steps 1 and 2 (each smoothed to about a metre): 200 m -> a few metres
+    assert np.linalg.norm(fine[:, 0].numpy() - true[:, 0], axis=-1).max() < 4.0
+    before, _, fine1 = f.smooth(1)
+    moved = fine[:, 0] - fine1[:, 0]
+    assert moved.norm(dim=-1).min() > 150.0
+    torch.testing.assert_close(kxy[:, 0], before[:, 0] + moved[:, None], atol=1e-3, rtol=0)
+    torch.testing.assert_close(kxy[:, 1:], torch.from_numpy(np.stack(f.cells.xy[1:T], 1)).float())

@@ -24,16 +24,19 @@ backward pass: a prefix's result never depends on the steps after it.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 from mmwsim._threads import pieces, thread_map
 
+from ..matching import GUIDE
 from .beam import motion_arrays, pair_backward, pair_forward, pair_start, rw_step
 from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _step_distances
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
-__all__ = ["ALTERNATIVE_PRIOR", "BEAM", "FINE_BEAM", "FINE_CELLS", "CandidateFilter"]
+__all__ = ["ALTERNATIVE_PRIOR", "BEAM", "FINE_BEAM", "FINE_CELLS", "VAGUE_GATE", "CandidateFilter"]
 
 BEAM = 512  # pairs of cell candidates kept per step
 FINE_CELLS = 8  # cells per step split into sub-cells (more than the offline smoother's 6: it
@@ -42,6 +45,15 @@ FINE_BEAM = 512  # pairs of sub-cell points kept per step
 # Prior probability that a user does not move like the training users (the alternative motion
 # model): even odds, untuned; priors of 0.1 to 0.3 moved no figure by more than 3 % (README).
 ALTERNATIVE_PRIOR = 0.5
+# A step whose candidates' log-likelihoods span less than this says little about where the user
+# is. The matcher's guided search looks near the track where its k most likely points lie within
+# log(1 + A) of the best (:data:`~estimation.matching.GUIDE`), and then keeps points up to
+# log(1 + A) below those: such a step's candidates span less than twice that.
+VAGUE_SPAN = 2 * math.log1p(GUIDE[0])
+# Metres (plus the track's step length per step between them) a vague step may lie from the
+# nearest informative step before it is put on the track of the informative steps around it (see :meth:`CandidateFilter.smooth`): far more than
+# the smoothers' errors (a weak first step 2 m off is kept), far less than a jump to an alias.
+VAGUE_GATE = 10.0
 
 
 def _log_softmax(x: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -120,6 +132,51 @@ class _Beam:
         return out
 
 
+def _vague_shift(pos: np.ndarray, vague: np.ndarray, gate: float = VAGUE_GATE) -> np.ndarray:
+    """``(B, T, 2)`` metres that put each vague step on the track of the informative steps around
+    it where it lies farther from the nearest of them than ``gate`` metres plus the track's step
+    length (at least the user's median step) per step between them; zero elsewhere.
+
+    A fingerprint that says little (empty where a user enters a coverage gap) has thousands of
+    equally likely points; where the steps before it do not say where to look (it comes first, or
+    the user is faster than they predict), its candidates may all be far from the user, and the
+    smoother, which weighs only those, puts the step there whatever the steps around it say. Such
+    a step's candidates are interchangeable, so its estimate is where the motion puts it: at
+    constant velocity between the nearest informative steps before and after it, or extrapolated
+    from the two at the end it has. ``pos (B, T, 2)`` are the smoothed positions, ``vague (B, T)``
+    bool."""
+    B, T = vague.shape
+    shift = np.zeros_like(pos)
+    users, t = np.nonzero(vague)
+    if not len(users):
+        return shift
+    steps = np.arange(T)
+    before = np.maximum.accumulate(np.where(vague, -1, steps), axis=1)[users, t]
+    after = np.minimum.accumulate(np.where(vague, T, steps)[:, ::-1], axis=1)[:, ::-1][users, t]
+    has_b, has_a = before >= 0, after < T
+    b, a = np.clip(before, 0, T - 1), np.clip(after, 0, T - 1)
+    pb, pa = pos[users, b], pos[users, a]
+    # velocity: between the two anchors, else from the anchor's neighbour on its far side
+    both = (pa - pb) / np.maximum(a - b, 1)[:, None]
+    lead = pos[users, np.minimum(a + 1, T - 1)] - pa
+    trail = pb - pos[users, np.maximum(b - 1, 0)]
+    v = np.where((has_b & has_a)[:, None], both, np.where(has_a[:, None], lead, trail))
+    target = np.where(has_b[:, None], pb + (t - b)[:, None] * v, pa - (a - t)[:, None] * v)
+    # Off: farther from the nearest informative step than the track's speed reaches (plus the
+    # gate), which no turn explains; a turning user may lie far off the chord, never that far.
+    near_b = has_b & (~has_a | (t - b <= a - t))
+    away = np.where(near_b, t - b, a - t)
+    anchor = np.where(near_b[:, None], pb, pa)
+    # the track's speed: its own between the anchors, at least the user's median step (robust to
+    # the jumps sought; where one anchor has no neighbour, v is zero)
+    median = np.median(np.linalg.norm(np.diff(pos, axis=1), axis=-1), axis=1) if T > 1 else np.zeros(B)
+    reach = gate + away * np.maximum(np.linalg.norm(v, axis=1), median[users])
+    off = np.linalg.norm(pos[users, t] - anchor, axis=1) > reach
+    sel = off & (has_b | has_a)
+    shift[users[sel], t[sel]] = target[sel] - pos[users[sel], t[sel]]
+    return shift
+
+
 def _grouped(val: np.ndarray, group: np.ndarray, K: int) -> np.ndarray:
     """Normalised log-sum-exp of ``val (B, M)`` grouped by ``group (B, M)`` into ``(B, K)``."""
     v = torch.from_numpy(val)
@@ -173,6 +230,9 @@ class CandidateFilter:
         A second cell-level and sub-cell motion model, as ``motion`` and ``motion_fine``.
     alternative_prior : float
         Prior probability of the alternative model, in (0, 1).
+    vague_gate : float or None
+        Metres (plus the track's step length per step) a step whose fingerprint says little may
+        lie from the nearest informative step before :meth:`smooth` puts it on their track (default :data:`VAGUE_GATE`; None: never).
     """
 
     def __init__(
@@ -187,8 +247,10 @@ class CandidateFilter:
         n_sub: int = SUBCELLS,
         alternative: tuple[MotionTable | MixtureMotion, MotionTable | None] | None = None,
         alternative_prior: float = ALTERNATIVE_PRIOR,
+        vague_gate: float | None = VAGUE_GATE,
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
+        self.vague_gate = vague_gate
         self._models = [_Hypothesis(motion, motion_fine, beam, fine_beam)]
         if alternative is not None:
             if not 0.0 < alternative_prior < 1.0:
@@ -202,6 +264,7 @@ class CandidateFilter:
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
         self._rw: np.ndarray | None = None  # (B, k, n_s) filtered random-walk posteriors
         self.positions: list[np.ndarray] = []  # (B, 2) filtered estimate of every step
+        self.vague: list[np.ndarray] = []  # (B,) bool per step: its fingerprint says little
 
     @property
     def cells(self) -> _Beam:
@@ -225,7 +288,8 @@ class CandidateFilter:
         log-likelihoods ``score (B, S)`` (as :meth:`FingerprintMatcher.track_candidates` gives
         them). Returns the users' current positions ``(B, 2)`` float64 metres."""
         xy = np.asarray(xy, dtype=np.float64)
-        lp = _log_softmax(np.asarray(score, dtype=np.float64))
+        score = np.asarray(score, dtype=np.float64)
+        lp = _log_softmax(score)
         if self.steps and xy.shape[0] != self.cells.xy[0].shape[0]:
             raise ValueError(f"a step of {xy.shape[0]} users after steps of {self.cells.xy[0].shape[0]}")
         if self._rw is None:
@@ -248,6 +312,7 @@ class CandidateFilter:
         w = self.model_weights(len(self.positions) + 1)
         pos = sum(w[:, i, None] * p for i, p in enumerate(per_model))
         self.positions.append(pos)
+        self.vague.append(score.max(1) - score.min(1) < VAGUE_SPAN)
         return pos
 
     def run(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> CandidateFilter:
@@ -275,12 +340,16 @@ class CandidateFilter:
 
         Returns
         -------
-        xy : (B, T, k, 2) float32, metres; the kept candidates
+        xy : (B, T, k, 2) float32, metres; the kept candidates (those of a vague step that the
+            motion puts elsewhere moved with its estimate, see ``fine``)
         post : (B, T, k, 2 + len(STEP_SIGMAS)) float32
             Step-wise log posterior under a flat prior, the smoothed random-walk posteriors at
             each step scale, then the smoothed constant-velocity posterior (averaged over the
             motion models); clipped at -30.
-        fine : (B, T, 2) float32, metres; smoothed positions (sub-cell posterior means)
+        fine : (B, T, 2) float32, metres; smoothed positions (sub-cell posterior means). A step whose
+            fingerprint says little and which lies farther than ``vague_gate`` metres (plus the
+            track's step length per step) from the nearest informative step is put on the track
+            of the informative steps around it.
         """
         T = self.steps if T is None else int(T)
         if not 1 <= T <= self.steps:
@@ -297,6 +366,9 @@ class CandidateFilter:
             fine += w[..., i] * fi
         cv = p.log().clamp(min=-1e300).float()
         post = torch.stack([lp] + [_random_walk(d2, lp, s) for s in STEP_SIGMAS] + [cv], -1)
+        if self.vague_gate is not None:
+            shift = torch.from_numpy(_vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate))
+            xy, fine = xy + shift[:, :, None].float(), fine + shift
         return xy, post.clamp(min=LOGP_FLOOR), fine.float()
 
     def _smooth_one(self, h: _Hypothesis, T: int, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -51,8 +51,9 @@ ALTERNATIVE_PRIOR = 0.5
 # log(1 + A) below those: such a step's candidates span less than twice that.
 VAGUE_SPAN = 2 * math.log1p(GUIDE[0])
 # Metres (plus the track's step length per step between them) a vague step may lie from the
-# nearest informative step before it is put on the track of the informative steps around it (see :meth:`CandidateFilter.smooth`): far more than
-# the smoothers' errors (a weak first step 2 m off is kept), far less than a jump to an alias.
+# nearest informative step before it is put on the track of the informative steps around it
+# (see :meth:`CandidateFilter.smooth`): far more than the smoothers' errors (a weak first step
+# 2 m off is kept), far less than a jump to an alias.
 VAGUE_GATE = 10.0
 
 
@@ -232,7 +233,8 @@ class CandidateFilter:
         Prior probability of the alternative model, in (0, 1).
     vague_gate : float or None
         Metres (plus the track's step length per step) a step whose fingerprint says little may
-        lie from the nearest informative step before :meth:`smooth` puts it on their track (default :data:`VAGUE_GATE`; None: never).
+        lie from the nearest informative step before :meth:`smooth` puts it on their track
+        (default :data:`VAGUE_GATE`; None: never).
     """
 
     def __init__(

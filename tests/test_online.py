@@ -233,9 +233,15 @@ def test_vague_steps_far_off_the_track_go_onto_it():
     pos[3, 4] += (0.0, 70.0)  # far but informative: kept
     pos[4] += (0.0, 40.0) * (np.arange(7) % 2)[:, None]  # nothing informative: kept
     vague[4] = True
-    turn = np.concatenate([line[:4], line[3] + 5.0 * np.stack([np.zeros(3), np.arange(1, 4)], -1)])
-    pos = np.concatenate([pos, turn[None]])  # a right-angle turn at a vague step 3: reachable, kept
-    vague = np.concatenate([vague, np.isin(np.arange(7), [3, 4])[None]])
+    # A right-angle turn at 12 m per step inside a vague run (steps 2-5): step 3, the corner, is
+    # 20 m off the chord between steps 1 and 6 (more than the gate plus the chord's step) but
+    # within reach of step 1 at the user's speed: kept.
+    fast = 12.0 * np.arange(4)
+    turn = np.concatenate([np.stack([fast, 0 * fast], -1), np.stack([36.0 + 0 * fast[1:], fast[1:]], -1)])
+    pos = np.concatenate([pos, turn[None]])
+    vague = np.concatenate([vague, np.isin(np.arange(7), [2, 3, 4, 5])[None]])
+    chord = turn[1] + 2 * (turn[6] - turn[1]) / 5
+    assert np.linalg.norm(turn[3] - chord) > VAGUE_GATE + np.linalg.norm(turn[6] - turn[1]) / 5
     out = pos + _vague_shift(pos, vague)
     np.testing.assert_allclose(out[0], line, atol=1e-12)
     # steps 1 and 4 anchor steps 2 and 3 at constant velocity between them

@@ -9,7 +9,7 @@ corridor around one estimated trajectory, and writes everything into one ``.rrd`
 
     from mmwsim.demo import run_demo
 
-    result = run_demo("demo", tiny=True)   # under a minute; tiny=False: about 10 minutes on 2 cores
+    result = run_demo("demo", tiny=True)   # under a minute; tiny=False: about 4 minutes on 2 cores
     print(result.rmse_m, result.path_length_m, result.rrd)
 
 Every stage is the library's own (``mmwsim.generate_dataset``, ``mmwsim.trajectories``,

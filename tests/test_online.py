@@ -45,9 +45,8 @@ PLACED = (
 @pytest.mark.parametrize("motion", [MOTION, PLACED], ids=["motion", "with-place"])
 def test_unpruned_beam_is_the_dense_constant_velocity_smoother(motion):
     xy, score = _candidates()
-    f = CandidateFilter(motion, k=10, beam=100, vague_gate=None).run(
-        xy, score
-    )  # 10 x 10 pairs: nothing pruned
+    # 10 x 10 pairs: nothing pruned; the toy scores look vague, so the vague-step rule is off
+    f = CandidateFilter(motion, k=10, beam=100, vague_gate=None).run(xy, score)
     kxy, post, _ = f.smooth()
     dense = velocity_posterior(kxy.double(), post[..., 0].double(), motion)
     assert torch.allclose(post[..., -1].double(), dense.clamp(min=-30), atol=1e-4)
@@ -77,9 +76,8 @@ def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
         lattice.fit_place(snap_to_lattice(_tracks()), (-60.5, -60.5), 1 / 3, (363, 363), speed=3.0)
     xy, score = _candidates(B=2, T=4, S=4)
     xy = torch.round(xy)  # grid points of a 1 m grid
-    f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36, vague_gate=None).run(
-        xy, score
-    )
+    f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36, vague_gate=None)
+    f.run(xy, score)
     kxy, post, fine = f.smooth()
     # every cell split into its 3 x 3 lattice points, each with its cell's likelihood
     sxy = (kxy.double()[:, :, :, None] + torch.tensor(f._offsets)).reshape(2, 4, 36, 2)

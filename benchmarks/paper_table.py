@@ -2,7 +2,7 @@
 
     python benchmarks/paper_table.py DATA.zarr --out DIR [--budget-minutes 30] [--models lstm tn ...]
         [--tasks tracking forecasting] [--noises 6 9] [--max-trajectories N] [--max-test N]
-        [--epoch-size 2048]
+        [--epoch-size 2048] [--reuse OTHER_DIR ...]
 
 Every model (LSTM, GRU, RNN, TCN, Conv1D, tn, tn-match) is trained for each task under one
 protocol: the same training and validation trajectories, the same epoch size, early stopping on the
@@ -18,7 +18,10 @@ time) and DIR/error_vs_length.png (tracking error against sequence length) are w
 Resumable: rerun the same command after a kill. Finished runs are skipped, an interrupted run
 continues from its last checkpoint with the rest of its budget, and evaluations are cached per
 method in DIR/cache (recomputed only when the run or the evaluation settings change). DIR keeps the
-protocol it was started with (DIR/protocol.json); a rerun under another protocol is refused.
+protocol it was started with (DIR/protocol.json); a rerun under another protocol is refused. A
+classical tracker's evaluation depends on the data and the test draws, not on how the networks are
+trained: ``--reuse OTHER_DIR`` takes it from another table's folder (another budget, patience or
+epoch size) where it was made on the same data, test draws and noise levels.
 """
 
 from __future__ import annotations
@@ -42,6 +45,8 @@ SPLIT_LABELS = {"test/seen": "seen", "test/holdout": "held-out"}
 KINDS = ("vehicle", "pedestrian", "all")
 CLASSICAL = ("oracle", "knn-kalman", "match-cv")
 CACHE_FORMAT = 1
+# protocol entries that only shape training: a classical tracker's evaluation does not depend on them
+TRAINING_ONLY = ("epoch_size", "patience", "max_epochs", "budget_minutes", "calibrate", "sigma")
 
 
 class _Usage(Exception):
@@ -103,6 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"classical trackers to evaluate beside the runs (default: {' '.join(CLASSICAL)}; the oracle "
         "only where it exists)",
     )
+    ap.add_argument(
+        "--reuse",
+        nargs="+",
+        default=[],
+        metavar="DIR",
+        help="other table folders whose classical evaluations to take where data, test draws and "
+        "noise levels are the same (e.g. a table at another budget)",
+    )
     ap.add_argument("--sigma", type=float, default=6.0, help="training noise, dB (default 6)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
@@ -137,6 +150,9 @@ def _check(args) -> None:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise _Usage(f"--out {out}: exists and is not a folder")
+    bad = [d for d in args.reuse if not (Path(d) / "cache").is_dir()]
+    if bad:
+        raise _Usage(f"--reuse: {' '.join(bad)}: not a table folder (no cache/ in it)")
     args.models = list(dict.fromkeys(args.models))
     args.tasks = list(dict.fromkeys(args.tasks))
     args.noises = list(dict.fromkeys(float(n) for n in args.noises))
@@ -454,12 +470,21 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
             run_summary = read_run_info(what).get("summary", {})
             want = setting | {"run": run_summary}
         else:
-            want = setting | {"method": key}
+            data_only = {k: v for k, v in protocol.items() if k not in TRAINING_ONLY}
+            want = setting | {"protocol": data_only, "method": key}
+        want = json.loads(json.dumps(want, default=float))
         path = out / "cache" / f"eval-{key}.json"
-        cached = _read_json(path) if path.exists() else None
-        if cached and cached.get("setting") == json.loads(json.dumps(want, default=float)):
+        cached = _read_json(path)
+        reused = None
+        if not (cached and cached.get("setting") == want) and kind != "run":
+            reused = _reusable(args.reuse, f"eval-{key}.json", want)
+        if cached and cached.get("setting") == want:
             log(f"{head}: cached")
             result = cached
+        elif reused is not None:
+            where, result = reused
+            _write_json(path, result)
+            log(f"{head}: taken from {where}")
         else:
             if kind == "run":
                 m = method(what)
@@ -487,6 +512,15 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
         if label not in order:
             order.append(label)
     return merged, order, skipped
+
+
+def _reusable(folders: list[str], name: str, want: dict[str, Any]):
+    """The first ``(folder, evaluation)`` among the other tables' caches made under ``want``, or None."""
+    for folder in folders:
+        found = _read_json(Path(folder) / "cache" / name)
+        if found and found.get("setting") == want:
+            return folder, found
+    return None
 
 
 def _no_cost(result: dict[str, Any]) -> dict[str, Any]:

@@ -93,6 +93,22 @@ def test_paper_table_resumes_and_writes_the_table(paper_table, tmp_path, capsys)
     err = capsys.readouterr().err.strip()
     assert "another protocol" in err and "\n" not in err
 
+    # A table at another budget in its own folder takes the classical trackers' evaluations from
+    # this one (they do not depend on training) and evaluates its own runs.
+    other = _args(tmp_path / "other") + ["--reuse", str(out)]
+    other[other.index("--budget-minutes") + 1] = "0.03"
+    other[other.index("--models") + 1 : other.index("--tasks")] = ["conv1d"]
+    assert paper_table.main(other) == 0
+    text = capsys.readouterr().out
+    for key in ("knn-kalman-tracking", "knn-kalman-forecasting"):  # the oracle: not on toy data
+        assert f"{key}: taken from {out}" in text
+    assert "conv1d-tracking: evaluating" in text and "conv1d-forecasting: evaluating" in text
+    # ... but not where the test draws differ
+    other = _args(tmp_path / "third") + ["--reuse", str(out), "--max-test", "5", "--models", "conv1d"]
+    assert paper_table.main(other) == 0
+    text = capsys.readouterr().out
+    assert "taken from" not in text and "knn-kalman-tracking: evaluating" in text
+
 
 def test_paper_table_sizes_a_cosine_recipe_on_a_probe_epoch(paper_table, tmp_path, capsys):
     out = tmp_path / "table"
@@ -122,6 +138,7 @@ def test_paper_table_sizes_a_cosine_recipe_on_a_probe_epoch(paper_table, tmp_pat
         ["--noises", "nan"],
         ["--tasks", "planning"],
         ["--max-trajectories", "-1"],
+        ["--reuse", "/nonexistent-table"],
     ],
 )
 def test_paper_table_bad_arguments(paper_table, tmp_path, capsys, bad):

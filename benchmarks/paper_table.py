@@ -475,10 +475,9 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
         want = json.loads(json.dumps(want, default=float))
         path = out / "cache" / f"eval-{key}.json"
         cached = _read_json(path)
-        reused = None
-        if not (cached and cached.get("setting") == want) and kind != "run":
-            reused = _reusable(args.reuse, f"eval-{key}.json", want)
-        if cached and cached.get("setting") == want:
+        hit = bool(cached) and cached.get("setting") == want
+        reused = None if hit or kind == "run" else _reusable(args.reuse, f"eval-{key}.json", want)
+        if hit:
             log(f"{head}: cached")
             result = cached
         elif reused is not None:

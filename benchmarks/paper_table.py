@@ -473,17 +473,16 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
             data_only = {k: v for k, v in protocol.items() if k not in TRAINING_ONLY}
             want = setting | {"protocol": data_only, "method": key}
         want = json.loads(json.dumps(want, default=float))
-        path = out / "cache" / f"eval-{key}.json"
-        cached = _read_json(path)
-        hit = bool(cached) and cached.get("setting") == want
-        reused = None if hit or kind == "run" else _reusable(args.reuse, f"eval-{key}.json", want)
-        if hit:
-            log(f"{head}: cached")
-            result = cached
-        elif reused is not None:
-            where, result = reused
-            _write_json(path, result)
-            log(f"{head}: taken from {where}")
+        name = f"eval-{key}.json"
+        path = out / "cache" / name
+        # a network's evaluation is its own run's; a classical tracker's may be another table's
+        folders = [out, *([] if kind == "run" else args.reuse)]
+        hit = next(((d, r) for d in folders if (r := _cached(d, name, want)) is not None), None)
+        if hit is not None:
+            where, result = hit
+            if where != out:
+                _write_json(path, result)
+            log(f"{head}: " + ("cached" if where == out else f"taken from {where}"))
         else:
             if kind == "run":
                 m = method(what)
@@ -513,13 +512,10 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
     return merged, order, skipped
 
 
-def _reusable(folders: list[str], name: str, want: dict[str, Any]):
-    """The first ``(folder, evaluation)`` among the other tables' caches made under ``want``, or None."""
-    for folder in folders:
-        found = _read_json(Path(folder) / "cache" / name)
-        if found and found.get("setting") == want:
-            return folder, found
-    return None
+def _cached(folder: str | Path, name: str, want: dict[str, Any]) -> dict[str, Any] | None:
+    """The evaluation ``name`` in table folder ``folder``'s cache if it was made under ``want``."""
+    found = _read_json(Path(folder) / "cache" / name)
+    return found if found and found.get("setting") == want else None
 
 
 def _no_cost(result: dict[str, Any]) -> dict[str, Any]:

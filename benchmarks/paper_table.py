@@ -2,13 +2,14 @@
 
     python benchmarks/paper_table.py DATA.zarr --out DIR [--budget-minutes 30] [--models lstm tn ...]
         [--tasks tracking forecasting] [--noises 6 9] [--max-trajectories N] [--max-test N]
-        [--epoch-size 2048] [--reuse OTHER_DIR ...]
+        [--epoch-size 2048] [--fill-budget] [--reuse OTHER_DIR ...]
 
 Every model (LSTM, GRU, RNN, TCN, Conv1D, tn, tn-match) is trained for each task under one
 protocol: the same training and validation trajectories, the same epoch size, early stopping on the
 validation loss with the same patience, and one wall-clock budget per model (no epoch starts after
 it; the budget is stated in the table; a cosine recipe is extended to the epochs a timed probe
-epoch says fit it, never shortened below the recipe scaled by budget / 30 minutes). Runs go to DIR/runs/<model>-<task>. Then the runs and the
+epoch says fit it, never shortened below the recipe scaled by budget / 30 minutes, and past the
+recipe's own length only with ``--fill-budget``). Runs go to DIR/runs/<model>-<task>. Then the runs and the
 classical trackers (the oracle first, when ``estimation.method("oracle")`` exists; knn-kalman;
 match-cv) are evaluated on test/seen and test/holdout at each noise level, all on the same noisy
 fingerprints, and DIR/paper_table.md (accuracy at 7 steps for tracking, the forecast for forecasting,
@@ -18,7 +19,8 @@ time) and DIR/error_vs_length.png (tracking error against sequence length) are w
 Resumable: rerun the same command after a kill. Finished runs are skipped, an interrupted run
 continues from its last checkpoint with the rest of its budget, and evaluations are cached per
 method in DIR/cache (recomputed only when the run or the evaluation settings change). DIR keeps the
-protocol it was started with (DIR/protocol.json); a rerun under another protocol is refused. A
+protocol it was started with (DIR/protocol.json); a rerun under another protocol is refused. The
+tasks may be run one at a time in one folder: the table keeps every task made there. A
 classical tracker's evaluation depends on the data and the test draws, not on how the networks are
 trained: ``--reuse OTHER_DIR`` takes it from another table's folder (another budget, patience or
 epoch size) where it was made on the same data, test draws and noise levels.
@@ -46,7 +48,15 @@ KINDS = ("vehicle", "pedestrian", "all")
 CLASSICAL = ("oracle", "knn-kalman", "match-cv")
 CACHE_FORMAT = 1
 # protocol entries that only shape training: a classical tracker's evaluation does not depend on them
-TRAINING_ONLY = ("epoch_size", "patience", "max_epochs", "budget_minutes", "calibrate", "sigma")
+TRAINING_ONLY = (
+    "epoch_size",
+    "patience",
+    "max_epochs",
+    "budget_minutes",
+    "calibrate",
+    "fill_budget",
+    "sigma",
+)
 
 
 class _Usage(Exception):
@@ -100,6 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="extend each cosine recipe to the epochs that a timed probe epoch says fit the budget "
         "(default; never shorter than the recipe scaled by budget / 30 minutes); --no-calibrate "
         "only scales it",
+    )
+    ap.add_argument(
+        "--fill-budget",
+        action="store_true",
+        help="let the calibration extend a cosine recipe past its own length, to all the epochs the "
+        "budget holds (forecasting recipes end at 200 epochs after a third to a half of 30 minutes)",
     )
     ap.add_argument(
         "--classical",
@@ -227,6 +243,7 @@ def _main(args) -> int:
         "max_epochs": args.max_epochs,
         "budget_minutes": args.budget_minutes,
         **({"calibrate": True} if args.calibrate else {}),  # older folders continue with --no-calibrate
+        **({"fill_budget": True} if args.fill_budget else {}),
         "sigma": args.sigma,
         "seed": args.seed,
         # forecasting: observed and predicted steps (the training defaults, used by every method)
@@ -244,8 +261,8 @@ def _main(args) -> int:
         _check_protocol(out, protocol)
         runs = _train_all(args, out, sets, info, protocol)
         ev, names, skipped = _evaluate_all(args, out, sets, runs, protocol)
-        md = _write_outputs(args, out, ev, names, protocol, skipped)
-    log(f"wrote {md} and {out / 'error_vs_length.png'} ({time.perf_counter() - t_start:.0f} s)")
+        written = _write_outputs(args, out, ev, names, protocol, skipped)
+    log(f"wrote {', '.join(map(str, written))} ({time.perf_counter() - t_start:.0f} s)")
     return 0
 
 
@@ -293,7 +310,8 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
                 epoch_size=protocol["epoch_size"], seed=args.seed,
             )  # fmt: skip
             if args.calibrate:
-                settings, probe = _calibrated(base, budget, args.max_epochs, sets, out, name, head)
+                cap = args.max_epochs if args.fill_budget else min(args.max_epochs, _recipe_epochs(model))
+                settings, probe = _calibrated(base, budget, cap, sets, out, name, head)
             else:
                 settings, probe = budget_settings(model, args.budget_minutes, cap=args.max_epochs), 0.0
             cfg = TrainConfig(**base, **settings)
@@ -324,7 +342,7 @@ def _calibrated(
     tracking epochs; a model or task with cheaper epochs (forecasting: 3 to 4x) ends it long before
     the budget. A probe trains one warm-up epoch (when the recipe has a warm-up) and one sequence
     epoch, and the recipe is extended to as many epochs as the rest of the budget holds at those
-    costs (95 % of it, as epochs vary), at most its own and ``cap``; never shortened below the
+    costs (95 % of it, as epochs vary), at most ``cap``; never shortened below the
     scaled one (sized to end within 8 minutes, tracking trained worse than cut short by the
     budget: README). The probe's time counts against the budget.
     The result is kept in DIR/cache, so a resumed run keeps its schedule. Models on the plateau
@@ -357,12 +375,19 @@ def _calibrated(
     # Never shorter than the recipe scaled by the budget: at 8 minutes a cosine sized to end within
     # the budget trained worse than the longer one the budget cut (README).
     scaled = budget_settings(base["model"], budget / 60.0)["epochs"]
-    epochs = int(min(max(2, left // per_epoch, scaled), recipe["epochs"], cap))
+    epochs = int(min(max(2, left // per_epoch, scaled), cap))
     _write_json(
         marker, {"epochs": epochs, "probe_seconds": seconds, "per_epoch": per_epoch, "scaled": scaled}
     )
     log(f"{head}: probe epochs {', '.join(f'{t:.1f}' for t in seconds)} s -> {epochs} epochs in the budget")
     return {"epochs": epochs}, float(sum(seconds))
+
+
+def _recipe_epochs(model: str) -> int:
+    """Epochs of a model's own recipe (1000 where it sets none)."""
+    from estimation.models import model_spec
+
+    return int(model_spec(model).recipe.get("epochs", 1000))
 
 
 def _history(run: Path) -> list[float]:
@@ -453,19 +478,33 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
     first = [c for c in args.classical if c == "oracle"]  # the floor heads every table
     last = [c for c in CLASSICAL if c in args.classical and c != "oracle"]
     t_obs, horizon = protocol["t_obs"], protocol["horizon"]
-    for task in args.tasks:
+    # A task run before in this folder (the table's tasks split over several runs of the
+    # script) keeps its rows in the table: its cached evaluations are read, nothing is made.
+    for task in TASKS:
+        if task in args.tasks:
+            task_runs = runs
+        else:
+            task_runs = {
+                n: out / "runs" / n
+                for m in args.models
+                if _read_json(out / "cache" / f"train-{(n := f'{m}-{task}')}.json")
+                and (out / "runs" / n / "model.pt").exists()
+            }
         for name in first:
             jobs.append((name, task, f"{name}-{task}", ("classical", name)))
         for model in args.models:
             name = f"{model}-{task}"
-            if name in runs:
-                jobs.append((model, task, name, ("run", runs[name])))
+            if name in task_runs:
+                jobs.append((model, task, name, ("run", task_runs[name])))
         for name in last:
             jobs.append((name, task, f"{name}-{task}", ("classical", name)))
     merged = Evaluation(table_length=7)
     order: list[str] = []
-    for i, (label, task, key, (kind, what)) in enumerate(jobs, 1):
-        head = f"[evaluate {i}/{len(jobs)}] {key}"
+    n_jobs, i = sum(task in args.tasks for _, task, _, _ in jobs), 0
+    for label, task, key, (kind, what) in jobs:
+        earlier = task not in args.tasks
+        i += not earlier
+        head = f"[earlier] {key}" if earlier else f"[evaluate {i}/{n_jobs}] {key}"
         if kind == "run":
             run_summary = read_run_info(what).get("summary", {})
             want = setting | {"run": run_summary}
@@ -478,6 +517,12 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
         # a network's evaluation is its own run's; a classical tracker's may be another table's
         folders = [out, *([] if kind == "run" else args.reuse)]
         hit = next(((d, r) for d in folders if (r := _cached(d, name, want)) is not None), None)
+        if earlier and (hit is None or hit[0] != out):
+            # not made in this folder: nothing to show, unless the method cannot do the task
+            why = _classical(what, task, t_obs, horizon, args.seed, args.dataset)[1] if kind != "run" else ""
+            if why:
+                skipped.append(f"{key}: {why}")
+            continue
         if hit is not None:
             where, result = hit
             if where != out:
@@ -543,7 +588,9 @@ def _evaluate_one(m, test, noises, validation, seed) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------------- outputs
 
 
-def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: list[str]) -> Path:
+def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: list[str]) -> list[Path]:
+    """Write DIR/paper_table.md and, where there are tracking rows, DIR/error_vs_length.png; the
+    files written."""
     from estimation.report import comparison_table, cost_table, plot_error_grid
     from mmwsim.files import write_text_atomic
 
@@ -553,6 +600,12 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
         if protocol.get("calibrate")
         else "shortened in proportion to the budget"
     )
+    if protocol.get("calibrate"):
+        schedule += (
+            ", past the recipe's own length if the budget holds more"
+            if protocol.get("fill_budget")
+            else ", at most to the recipe's own length"
+        )
     n_test = {
         sp: {r["kind"]: r["n"] for r in ev.rows if r["split"] == sp and r["kind"] in KINDS} for sp in SPLITS
     }
@@ -594,14 +647,14 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
     )
     if skipped:
         parts.append("Left out: " + "; ".join(skipped) + ".\n")
-    parts.append("![error against sequence length](error_vs_length.png)\n")
+    panels = [(sp, s) for s in args.noises for sp in SPLITS]
+    png = out / "error_vs_length.png"
+    plotted = plot_error_grid(ev, panels, png, KINDS, methods=order, split_labels=SPLIT_LABELS, log_y=True)
+    if plotted:
+        parts.append(f"![error against sequence length]({png.name})\n")
     md = out / "paper_table.md"
     write_text_atomic(md, "\n".join(parts))
-    panels = [(sp, s) for s in args.noises for sp in SPLITS]
-    plot_error_grid(
-        ev, panels, out / "error_vs_length.png", KINDS, methods=order, split_labels=SPLIT_LABELS, log_y=True
-    )
-    return md
+    return [md, png] if plotted else [md]
 
 
 if __name__ == "__main__":

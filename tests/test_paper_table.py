@@ -88,6 +88,15 @@ def test_paper_table_resumes_and_writes_the_table(paper_table, tmp_path, capsys)
     assert text.count("finished before") == 4 and "evaluating" not in text and "cached" in text
     assert stamps == {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*.pt")}
 
+    # The table's tasks run one at a time in one folder: the one run before keeps its rows.
+    only = _args(out)
+    only[only.index("--tasks") + 1 : only.index("--noises")] = ["forecasting"]
+    assert paper_table.main(only) == 0
+    text = capsys.readouterr().out
+    assert "[earlier] conv1d-tracking: cached" in text and "evaluating" not in text
+    assert "[evaluate 2/4] conv1d-forecasting" in text  # numbered among this run's own
+    assert (out / "paper_table.md").read_text() == md
+
     # Another protocol in the same folder is refused with one line.
     assert paper_table.main(_args(out) + ["--epoch-size", "16"]) == 2
     err = capsys.readouterr().err.strip()
@@ -128,6 +137,19 @@ def test_paper_table_sizes_a_cosine_recipe_on_a_probe_epoch(paper_table, tmp_pat
     # the probe's time counts against the budget: the run starts with what the probe left
     left = float(text.split("gru-tracking: training, ", 1)[1].split(" s left", 1)[0])
     assert left == pytest.approx(max(0.3 * 60 - sum(cal["probe_seconds"]), 0.0), abs=0.51)
+
+
+def test_paper_table_fill_budget_extends_a_recipe_past_its_own_length(paper_table, tmp_path, capsys):
+    from estimation.adapter import load_sets
+
+    sets, _ = load_sets(TOY, ("train", "validation"))
+    base = dict(model="gru", task="forecasting", sigma=6.0, patience=8, epoch_size=48, seed=0)
+    (tmp_path / "cache").mkdir()
+    own = paper_table._recipe_epochs("gru")
+    # ten minutes hold far more toy epochs than the recipe's: the cap alone bounds them
+    settings, _ = paper_table._calibrated(base, 600.0, 3 * own, sets, tmp_path, "gru-forecasting", "gru")
+    assert settings["epochs"] == 3 * own
+    assert f"-> {3 * own} epochs in the budget" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(

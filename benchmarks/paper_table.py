@@ -299,8 +299,8 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
         name = f"{model}-{task}"
         head = f"[train {i}/{len(jobs)}] {name}"
         run, marker = out / "runs" / name, out / "cache" / f"train-{name}.json"
-        done = _read_json(marker)
-        if done and (run / "model.pt").exists():
+        done = _finished(out, name)
+        if done:
             log(f"{head}: finished before ({_describe(done)}), skipped")
             runs[name] = run
             continue
@@ -310,8 +310,9 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
                 epoch_size=protocol["epoch_size"], seed=args.seed,
             )  # fmt: skip
             if args.calibrate:
-                cap = args.max_epochs if args.fill_budget else min(args.max_epochs, _recipe_epochs(model))
-                settings, probe = _calibrated(base, budget, cap, sets, out, name, head)
+                settings, probe = _calibrated(
+                    base, budget, args.max_epochs, sets, out, name, head, fill=args.fill_budget
+                )
             else:
                 settings, probe = budget_settings(model, args.budget_minutes, cap=args.max_epochs), 0.0
             cfg = TrainConfig(**base, **settings)
@@ -333,7 +334,7 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
 
 
 def _calibrated(
-    base: dict, budget: float, cap: int, sets, out: Path, name: str, head: str
+    base: dict, budget: float, cap: int, sets, out: Path, name: str, head: str, fill: bool = False
 ) -> tuple[dict, float]:
     """TrainConfig settings that fit a cosine recipe into ``budget`` seconds on this machine, and the
     seconds their probe took.
@@ -342,7 +343,8 @@ def _calibrated(
     tracking epochs; a model or task with cheaper epochs (forecasting: 3 to 4x) ends it long before
     the budget. A probe trains one warm-up epoch (when the recipe has a warm-up) and one sequence
     epoch, and the recipe is extended to as many epochs as the rest of the budget holds at those
-    costs (95 % of it, as epochs vary), at most ``cap``; never shortened below the
+    costs (95 % of it, as epochs vary), at most ``cap`` and, unless ``fill``, the recipe's own
+    length; never shortened below the
     scaled one (sized to end within 8 minutes, tracking trained worse than cut short by the
     budget: README). The probe's time counts against the budget.
     The result is kept in DIR/cache, so a resumed run keeps its schedule. Models on the plateau
@@ -375,7 +377,7 @@ def _calibrated(
     # Never shorter than the recipe scaled by the budget: at 8 minutes a cosine sized to end within
     # the budget trained worse than the longer one the budget cut (README).
     scaled = budget_settings(base["model"], budget / 60.0)["epochs"]
-    epochs = int(min(max(2, left // per_epoch, scaled), cap))
+    epochs = int(min(max(2, left // per_epoch, scaled), cap if fill else min(cap, recipe["epochs"])))
     _write_json(
         marker, {"epochs": epochs, "probe_seconds": seconds, "per_epoch": per_epoch, "scaled": scaled}
     )
@@ -383,11 +385,10 @@ def _calibrated(
     return {"epochs": epochs}, float(sum(seconds))
 
 
-def _recipe_epochs(model: str) -> int:
-    """Epochs of a model's own recipe (1000 where it sets none)."""
-    from estimation.models import model_spec
-
-    return int(model_spec(model).recipe.get("epochs", 1000))
+def _finished(out: Path, name: str) -> dict[str, Any] | None:
+    """The training summary of run ``name`` in table folder ``out`` if it finished, else None."""
+    done = _read_json(out / "cache" / f"train-{name}.json")
+    return done if done and (out / "runs" / name / "model.pt").exists() else None
 
 
 def _history(run: Path) -> list[float]:
@@ -484,12 +485,8 @@ def _evaluate_all(args, out: Path, sets, runs: dict[str, Path], protocol):
         if task in args.tasks:
             task_runs = runs
         else:
-            task_runs = {
-                n: out / "runs" / n
-                for m in args.models
-                if _read_json(out / "cache" / f"train-{(n := f'{m}-{task}')}.json")
-                and (out / "runs" / n / "model.pt").exists()
-            }
+            names = (f"{m}-{task}" for m in args.models)
+            task_runs = {n: out / "runs" / n for n in names if _finished(out, n)}
         for name in first:
             jobs.append((name, task, f"{name}-{task}", ("classical", name)))
         for model in args.models:

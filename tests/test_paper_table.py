@@ -145,9 +145,12 @@ def test_paper_table_fill_budget_extends_a_recipe_past_its_own_length(paper_tabl
     sets, _ = load_sets(TOY, ("train", "validation"))
     base = dict(model="gru", task="forecasting", sigma=6.0, patience=8, epoch_size=48, seed=0)
     (tmp_path / "cache").mkdir()
-    own = paper_table._recipe_epochs("gru")
+    from estimation.models import model_spec
+
+    own = model_spec("gru").recipe["epochs"]
     # ten minutes hold far more toy epochs than the recipe's: the cap alone bounds them
-    settings, _ = paper_table._calibrated(base, 600.0, 3 * own, sets, tmp_path, "gru-forecasting", "gru")
+    args = (base, 600.0, 3 * own, sets, tmp_path, "gru-forecasting", "gru")
+    settings, _ = paper_table._calibrated(*args, fill=True)
     assert settings["epochs"] == 3 * own
     assert f"-> {3 * own} epochs in the budget" in capsys.readouterr().out
 

@@ -2,14 +2,14 @@
 
     python benchmarks/paper_table.py DATA.zarr --out DIR [--budget-minutes 30] [--models lstm tn ...]
         [--tasks tracking forecasting] [--noises 6 9] [--max-trajectories N] [--max-test N]
-        [--epoch-size 2048] [--fill-budget] [--reuse OTHER_DIR ...]
+        [--epoch-size 2048] [--no-fill-budget] [--reuse OTHER_DIR ...]
 
 Every model (LSTM, GRU, RNN, TCN, Conv1D, tn, tn-match) is trained for each task under one
 protocol: the same training and validation trajectories, the same epoch size, early stopping on the
 validation loss with the same patience, and one wall-clock budget per model (no epoch starts after
 it; the budget is stated in the table; a cosine recipe is extended to the epochs a timed probe
 epoch says fit it, never shortened below the recipe scaled by budget / 30 minutes, and past the
-recipe's own length only with ``--fill-budget``). Runs go to DIR/runs/<model>-<task>. Then the runs and the
+recipe's own length unless ``--no-fill-budget``). Runs go to DIR/runs/<model>-<task>. Then the runs and the
 classical trackers (the oracle first, when ``estimation.method("oracle")`` exists; knn-kalman;
 match-cv) are evaluated on test/seen and test/holdout at each noise level, all on the same noisy
 fingerprints, and DIR/paper_table.md (accuracy at 7 steps for tracking, the forecast for forecasting,
@@ -113,9 +113,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--fill-budget",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=True,
         help="let the calibration extend a cosine recipe past its own length, to all the epochs the "
-        "budget holds (forecasting recipes end at 200 epochs after a third to a half of 30 minutes)",
+        "budget holds (default: forecasting recipes end at 200 epochs after a third to a half of 30 "
+        "minutes); --no-fill-budget stops at the recipe's length, as folders made before this default",
     )
     ap.add_argument(
         "--classical",
@@ -243,7 +245,8 @@ def _main(args) -> int:
         "max_epochs": args.max_epochs,
         "budget_minutes": args.budget_minutes,
         **({"calibrate": True} if args.calibrate else {}),  # older folders continue with --no-calibrate
-        **({"fill_budget": True} if args.fill_budget else {}),
+        # older folders: --no-fill-budget; without the calibration there is no probe to fill by
+        **({"fill_budget": True} if args.calibrate and args.fill_budget else {}),
         "sigma": args.sigma,
         "seed": args.seed,
         # forecasting: observed and predicted steps (the training defaults, used by every method)
@@ -274,11 +277,12 @@ def _check_protocol(out: Path, protocol: dict[str, Any]) -> None:
     if old is None:
         _write_json(path, protocol)
         return
-    differ = [k for k in protocol if old.get(k) != protocol[k]]
+    # a switch is recorded only where it is on: one the folder has and this run lacks differs too
+    differ = [k for k in [*protocol, *(k for k in old if k not in protocol)] if old.get(k) != protocol.get(k)]
     if differ:
         raise EstimationError(
             f"{out}: was started under another protocol ("
-            + ", ".join(f"{k} {old.get(k)} != {protocol[k]}" for k in differ)
+            + ", ".join(f"{k} {old.get(k)} != {protocol.get(k)}" for k in differ)
             + "); rerun with its settings or choose another --out"
         )
 
@@ -346,7 +350,7 @@ def _calibrated(
     costs (95 % of it, as epochs vary), at most ``cap`` and, unless ``fill``, the recipe's own
     length; never shortened below the
     scaled one (sized to end within 8 minutes, tracking trained worse than cut short by the
-    budget: README). The probe's time counts against the budget.
+    budget: docs/estimation.md). The probe's time counts against the budget.
     The result is kept in DIR/cache, so a resumed run keeps its schedule. Models on the plateau
     schedule get ``epochs = cap`` (the budget and early stopping end them).
     """
@@ -375,7 +379,7 @@ def _calibrated(
     per_epoch = share * seconds[0] + (1 - share) * seconds[-1]
     left = 0.95 * budget - sum(seconds)
     # Never shorter than the recipe scaled by the budget: at 8 minutes a cosine sized to end within
-    # the budget trained worse than the longer one the budget cut (README).
+    # the budget trained worse than the longer one the budget cut (docs/estimation.md).
     scaled = budget_settings(base["model"], budget / 60.0)["epochs"]
     epochs = int(min(max(2, left // per_epoch, scaled), cap if fill else min(cap, recipe["epochs"])))
     _write_json(

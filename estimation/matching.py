@@ -21,7 +21,7 @@ __all__ = ["FingerprintMatcher", "GUIDE"]
 # position, and its spread s in metres, plus a share of the last step's length. With A = 50 (at
 # most 3.9 nats, which an informative fingerprint's likelihood differences dwarf) the tn-match and
 # match-cv figures of the default data set did not move in the third decimal, and a vehicle whose
-# fingerprint was empty at the area's edge was tracked at 1 m instead of 197 m (README).
+# fingerprint was empty at the area's edge was tracked at 1 m instead of 197 m (docs/estimation.md).
 GUIDE = (50.0, 3.0, 0.5)
 
 

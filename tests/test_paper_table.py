@@ -121,7 +121,7 @@ def test_paper_table_resumes_and_writes_the_table(paper_table, tmp_path, capsys)
 
 def test_paper_table_sizes_a_cosine_recipe_on_a_probe_epoch(paper_table, tmp_path, capsys):
     out = tmp_path / "table"
-    args = _args(out, calibrate=True)
+    args = [*_args(out, calibrate=True), "--no-fill-budget"]
     args[args.index("--budget-minutes") + 1] = "0.3"
     args[args.index("--tasks") + 1 : args.index("--noises")] = ["tracking"]
     args[args.index("--models") + 1 : args.index("--tasks")] = ["gru"]
@@ -131,6 +131,7 @@ def test_paper_table_sizes_a_cosine_recipe_on_a_probe_epoch(paper_table, tmp_pat
     cal = json.loads((out / "cache" / "calibration-gru-tracking.json").read_text())
     assert len(cal["probe_seconds"]) == 2  # a warm-up epoch and a sequence epoch
     assert max(2, cal["scaled"]) <= cal["epochs"] <= 200  # extended to the budget, never shortened
+    assert "fill_budget" not in json.loads((out / "protocol.json").read_text())
     assert not list((out / "cache").glob("probe-*"))  # the probe's run is gone
     info = json.loads((out / "runs" / "gru-tracking" / "run.json").read_text())
     assert info["config"]["epochs"] == cal["epochs"]
@@ -153,6 +154,34 @@ def test_paper_table_fill_budget_extends_a_recipe_past_its_own_length(paper_tabl
     settings, _ = paper_table._calibrated(*args, fill=True)
     assert settings["epochs"] == 3 * own
     assert f"-> {3 * own} epochs in the budget" in capsys.readouterr().out
+
+
+def test_paper_table_fills_the_budget_by_default(paper_table, tmp_path, monkeypatch, capsys):
+    asked = []
+
+    def calibrated(*args, fill=False):
+        asked.append(fill)
+        return {"epochs": 2}, 0.0
+
+    monkeypatch.setattr(paper_table, "_calibrated", calibrated)
+    out = tmp_path / "table"
+    args = _args(out, calibrate=True)
+    args[args.index("--models") + 1 : args.index("--tasks")] = ["gru"]
+    args[args.index("--tasks") + 1 : args.index("--noises")] = ["forecasting"]
+    assert paper_table.main(args) == 0
+    assert asked == [True]
+    assert json.loads((out / "protocol.json").read_text())["fill_budget"] is True
+    assert "past the recipe's own length" in (out / "paper_table.md").read_text()
+    # a folder made under the default is not continued without it, nor one made before it with it
+    capsys.readouterr()
+    assert paper_table.main([*args, "--no-fill-budget"]) == 2
+    assert "fill_budget True != None" in capsys.readouterr().err
+    older = tmp_path / "older"
+    assert paper_table.main([*_args(older, calibrate=True), "--no-fill-budget", "--models", "gru",
+                             "--tasks", "forecasting"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert paper_table.main([*_args(older, calibrate=True), "--models", "gru", "--tasks", "forecasting"]) == 2
+    assert "fill_budget None != True" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -31,7 +31,7 @@ TN_RECIPE: dict[str, Any] = {
     "schedule": "cosine",
     "min_delta": 0.0,
 }
-"""How ``tn`` and the baselines (which share its embedding and head) train by default (README,
+"""How ``tn`` and the baselines (which share its embedding and head) train by default (docs/estimation.md,
 "Why the paper's transformer was at 7.5 m"): the cell head's loss; 24 warm-up epochs on single fingerprints at a learning rate of 3e-3, then sequences
 at 3e-4 (at 1e-3 the attention's first steps throw the trained embedding about), each phase on
 its own cosine down to zero, by epoch 200 in all; early stopping counts any

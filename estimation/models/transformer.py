@@ -37,7 +37,7 @@ class TransformerNet(nn.Module):
 
     Each fingerprint is embedded on its own, a stack of self-attention layers lets every step read
     the others, and a head turns each step's vector into a position in normalised units. The
-    defaults are the configuration measured best within a 30-minute budget on 2 cores (README,
+    defaults are the configuration measured best within a 30-minute budget on 2 cores (docs/estimation.md,
     "Why the paper's transformer was at 7.5 m"); :data:`PAPER_OPTIONS` gives the paper's.
 
     Parameters

@@ -309,7 +309,7 @@ class MotionTable(nn.Module):
         density over the table's reach (weight ``flat_step``). ``unit`` is the length of one table
         unit in metres (the grid spacing for :meth:`lattice` tables), as ``steer_sigma`` and the
         ring's blur are in metres. The defaults were chosen on the trajectories of
-        benchmarks/foreign_motion.py's generators, keeping our own test set's error (README).
+        benchmarks/foreign_motion.py's generators, keeping our own test set's error (docs/estimation.md).
         """
         if not (turn >= 0 and steer >= 0 and turn + steer <= 1 and 0 <= flat_step <= 1 and unit > 0):
             raise ValueError(

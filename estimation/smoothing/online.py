@@ -43,7 +43,7 @@ FINE_CELLS = 8  # cells per step split into sub-cells (more than the offline smo
 # chooses them by the filtered marginal, which knows less than the smoothed one)
 FINE_BEAM = 512  # pairs of sub-cell points kept per step
 # Prior probability that a user does not move like the training users (the alternative motion
-# model): even odds, untuned; priors of 0.1 to 0.3 moved no figure by more than 3 % (README).
+# model): even odds, untuned; priors of 0.1 to 0.3 moved no figure by more than 3 % (docs/estimation.md).
 ALTERNATIVE_PRIOR = 0.5
 # A step whose candidates' log-likelihoods span less than this says little about where the user
 # is. The matcher's guided search looks near the track where its k most likely points lie within

@@ -278,7 +278,7 @@ def _check_protocol(out: Path, protocol: dict[str, Any]) -> None:
         _write_json(path, protocol)
         return
     # a switch is recorded only where it is on: one the folder has and this run lacks differs too
-    differ = [k for k in [*protocol, *(k for k in old if k not in protocol)] if old.get(k) != protocol.get(k)]
+    differ = [k for k in dict.fromkeys([*protocol, *old]) if old.get(k) != protocol.get(k)]
     if differ:
         raise EstimationError(
             f"{out}: was started under another protocol ("
@@ -338,7 +338,7 @@ def _train_all(args, out: Path, sets, info, protocol) -> dict[str, Path]:
 
 
 def _calibrated(
-    base: dict, budget: float, cap: int, sets, out: Path, name: str, head: str, fill: bool = False
+    base: dict, budget: float, cap: int, sets, out: Path, name: str, head: str, *, fill: bool
 ) -> tuple[dict, float]:
     """TrainConfig settings that fit a cosine recipe into ``budget`` seconds on this machine, and the
     seconds their probe took.
@@ -348,9 +348,9 @@ def _calibrated(
     the budget. A probe trains one warm-up epoch (when the recipe has a warm-up) and one sequence
     epoch, and the recipe is extended to as many epochs as the rest of the budget holds at those
     costs (95 % of it, as epochs vary), at most ``cap`` and, unless ``fill``, the recipe's own
-    length; never shortened below the
-    scaled one (sized to end within 8 minutes, tracking trained worse than cut short by the
-    budget: docs/estimation.md). The probe's time counts against the budget.
+    length; never shortened below the scaled one (sized to end within 8 minutes, tracking trained
+    worse than cut short by the budget: docs/estimation.md). The probe's time counts against the
+    budget.
     The result is kept in DIR/cache, so a resumed run keeps its schedule. Models on the plateau
     schedule get ``epochs = cap`` (the budget and early stopping end them).
     """
@@ -596,17 +596,14 @@ def _write_outputs(args, out: Path, ev, order: list[str], protocol, skipped: lis
     from mmwsim.files import write_text_atomic
 
     budget = f"{args.budget_minutes:g} min"
-    schedule = (
-        "scaled to the budget and extended to the epochs a timed probe epoch says fit it"
-        if protocol.get("calibrate")
-        else "shortened in proportion to the budget"
-    )
     if protocol.get("calibrate"):
-        schedule += (
-            ", past the recipe's own length if the budget holds more"
+        schedule = "scaled to the budget and extended to the epochs a timed probe epoch says fit it, " + (
+            "past the recipe's own length if the budget holds more"
             if protocol.get("fill_budget")
-            else ", at most to the recipe's own length"
+            else "at most to the recipe's own length"
         )
+    else:
+        schedule = "shortened in proportion to the budget"
     n_test = {
         sp: {r["kind"]: r["n"] for r in ev.rows if r["split"] == sp and r["kind"] in KINDS} for sp in SPLITS
     }

@@ -159,7 +159,7 @@ def test_paper_table_fill_budget_extends_a_recipe_past_its_own_length(paper_tabl
 def test_paper_table_fills_the_budget_by_default(paper_table, tmp_path, monkeypatch, capsys):
     asked = []
 
-    def calibrated(*args, fill=False):
+    def calibrated(*args, fill):
         asked.append(fill)
         return {"epochs": 2}, 0.0
 

@@ -1,7 +1,8 @@
 """The oracle floor beside the trackers, on the same noise draws.
 
 Usage: python benchmarks/oracle_floor.py DATASET [RUN] [--max 1000] [--sigma 6] [--length 7]
-       [--convergence 0.25,1,4] [--threads 1]
+       [--convergence 0.25,1,4] [--misspecify vehicle.mean_speed=8.35,8.4] [--splits test/seen]
+       [--threads 1]
 
 The oracle (:mod:`estimation.oracle`) knows the generator's motion model and the exact fingerprint
 likelihood, so its error is the floor any tracker can reach on the data set's trajectories. The
@@ -10,6 +11,9 @@ script evaluates it with knn-kalman, match-cv and, if given, a training run (e.g
 test/holdout, and prints the mean per-trajectory RMSE per kind at ``--length`` steps with each
 method's prediction time. ``--convergence F1,F2,...`` adds the oracle with its default particle
 counts scaled by each factor (same draws), to show how far Monte-Carlo error still moves it.
+``--misspecify KIND.FIELD=V1,V2`` (repeatable) adds the oracle with one field of one kind's motion
+model set to each value (:meth:`estimation.oracle.Oracle.with_model`): how much of the floor rests
+on knowing the generator's constants exactly.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import torch
 
 
 def main() -> None:
-    from estimation import cost_table, evaluate, method
+    from estimation import EstimationError, cost_table, evaluate, method
     from estimation.adapter import load_splits
     from estimation.oracle import ORACLE_PARTICLES, OracleMethod
     from estimation.report import comparison_table
@@ -33,11 +37,27 @@ def main() -> None:
     ap.add_argument("--sigma", type=float, default=6.0, help="fingerprint noise, dB (default 6)")
     ap.add_argument("--length", type=int, default=7, help="steps of the table (default 7)")
     ap.add_argument("--convergence", help="factors on the oracle's particle counts, e.g. 0.25,1,4")
+    ap.add_argument(
+        "--misspecify",
+        action="append",
+        default=[],
+        metavar="KIND.FIELD=V1,V2",
+        help="add the oracle with a motion model field changed to each value (repeatable)",
+    )
+    ap.add_argument("--splits", nargs="+", default=["test/seen", "test/holdout"], help="test splits")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    changes = []
+    for spec in args.misspecify:
+        try:
+            target, values = spec.split("=", 1)
+            kind, field = target.split(".", 1)
+            changes += [(kind, field, float(v)) for v in values.split(",")]
+        except ValueError:
+            ap.error(f"--misspecify {spec!r}: use KIND.FIELD=V1,V2, e.g. vehicle.mean_speed=8.35")
 
-    splits = ("test/seen", "test/holdout")
+    splits = tuple(args.splits)
     sets, _ = load_splits(args.dataset, ("validation", *splits))
     t0 = time.perf_counter()
     oracle = OracleMethod(args.dataset)
@@ -50,6 +70,13 @@ def main() -> None:
             oracle.oracle.with_particles({k: max(1, round(n * f)) for k, n in ORACLE_PARTICLES.items()})
         )
         m.name = f"oracle x{f:g}"
+        methods.append(m)
+    for kind, field, value in changes:
+        try:
+            m = OracleMethod(oracle.oracle.with_model(kind, **{field: value}))
+        except EstimationError as e:
+            ap.error(str(e))
+        m.name = f"oracle {kind} {field} {value:g}"
         methods.append(m)
     methods += [method("knn-kalman", fit_length=args.length), method("match-cv")]
     if args.run:

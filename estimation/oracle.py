@@ -18,7 +18,9 @@ our generator: the posterior mean minimises the expected squared error of every 
 report the mean per-trajectory RMSE, whose exact minimiser differs from the posterior mean only
 by the spread of the squared errors within a trajectory; the difference is far below the gaps
 between methods.) It is evaluated as the ``oracle`` method (:class:`OracleMethod`), on the same
-noise draws as every other method.
+noise draws as every other method. The floor includes knowing the generator's constants exactly,
+which no tracker is told; :meth:`Oracle.with_model` changes one of them to measure what that
+knowledge is worth (for the vehicles' speeds, nearly all of their floor: docs/estimation.md).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import copy
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -629,6 +631,51 @@ class Oracle:
         """The same oracle (its free space and streets not rebuilt) with other particle counts."""
         other = copy.copy(self)
         other.n_particles, other.dead, other._acceptance = _particle_counts(n_particles), 0, {}
+        return other
+
+    def with_model(self, kind: str, **changes: float) -> Oracle:
+        """The same oracle with one moving kind's motion model changed: a misspecified oracle.
+
+        It measures how much of the floor rests on knowing the generator's constants exactly
+        (``benchmarks/oracle_floor.py --misspecify``): the vehicles' speeds, for one, take only
+        ``mean_speed + k speed_change`` within their range, which the true model pins them to.
+
+        Parameters
+        ----------
+        kind : str
+            A moving kind of the oracle (``pedestrian``, ``hybrid`` or ``vehicle``).
+        **changes : float
+            :class:`~mmwsim.trajectories.motion.MotionModel` fields and their new values, e.g.
+            ``mean_speed=8.35``: speeds, speed change, turn rate and event probabilities (not
+            ``kind``, nor ``clearance``, which would need another free space).
+
+        Returns
+        -------
+        Oracle
+            A copy sharing this one's free space, streets and other kinds; this one is unchanged.
+        """
+        from mmwsim.errors import MmwsimError
+
+        old = self.motion.get(kind)
+        if old is None:
+            raise EstimationError(f"oracle: no moving kind {kind!r} to change (has {', '.join(self.motion)})")
+        allowed = {f.name for f in fields(MotionModel)} - {"kind", "clearance"}
+        unknown = sorted(set(changes) - allowed)
+        if unknown:
+            raise EstimationError(
+                f"oracle: {kind}: cannot change {', '.join(unknown)} (can: {', '.join(sorted(allowed))})"
+            )
+        try:
+            model = old.model.replace(**changes)
+            model.check_rate(1.0 / self.dt)
+        except MmwsimError as e:
+            raise EstimationError(f"oracle: {e}") from None
+        other = self.with_particles(self.n_particles)
+        other.motion = dict(self.motion)
+        if isinstance(old, _StreetMotion):
+            other.motion[kind] = _StreetMotion(model, old.space, old.dt, old.net)
+        else:
+            other.motion[kind] = _FreeMotion(model, old.space, old.dt)
         return other
 
     @classmethod

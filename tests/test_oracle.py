@@ -130,6 +130,32 @@ def test_oracle_forecast_beats_every_method_on_data_from_its_own_model(world):
         OracleMethod(task="forecasting", t_obs=0, horizon=2)
 
 
+def test_a_misspecified_oracle_loses_the_floor(world):
+    te, va = world["test"], world["validation"]
+    true = world["oracle"]()
+    wrong = true.with_model("vehicle", mean_speed=3.5)
+    assert true.motion["vehicle"].model.mean_speed == 3.0  # the original is untouched
+    assert wrong.motion["vehicle"].model.mean_speed == 3.5
+    assert wrong.motion["pedestrian"] is true.motion["pedestrian"]
+    rows = np.flatnonzero(te.kind == KINDS.index("vehicle"))
+    bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))[rows]
+    err = {}
+    for name, oracle in (("true", true), ("wrong", wrong)):
+        pred = OracleMethod(oracle).for_sigma(6.0, va).predict_lengths(bits, [LENGTH])[LENGTH][0]
+        err[name] = trajectory_rmse(pred, te.positions[rows]).mean()
+    # the vehicles' speeds are 3 +- 1 m/s steps exactly; half a metre per second off and the
+    # particles no longer follow them
+    assert err["wrong"] > 1.25 * err["true"], err
+    with pytest.raises(EstimationError, match="no moving kind 'static'"):
+        true.with_model("static", mean_speed=1.0)
+    with pytest.raises(EstimationError, match="cannot change speed "):
+        true.with_model("vehicle", speed=1.0, mean_speed=3.5)
+    with pytest.raises(EstimationError, match="cannot change clearance"):
+        true.with_model("vehicle", clearance=2.0)
+    with pytest.raises(EstimationError, match="max_speed"):
+        true.with_model("vehicle", mean_speed=6.0)
+
+
 def test_prefix_estimates_see_only_their_steps_and_are_seeded(world):
     te = world["test"]
     bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))

@@ -14,6 +14,10 @@ generators that share nothing with :mod:`mmwsim.trajectories` but the free space
   16, stopping more than twice as often), each keeping to a lane 1 to 2.5 m right of the
   centre line that our own vehicles drive on (nearer where the street is too narrow for it).
 
+``--vehicle-speeds 7.5,8.8,9.5`` adds, per value, our own street vehicles with only their speeds
+changed: the generator's model with that mean speed (the maximum shifted with it), so they drive at
+three exact speeds as ours do, but not at ours.
+
 ``smooth`` and ``events`` vehicles roam off the streets and, at 5-16 m/s in a dense city, bounce
 off buildings with lateral accelerations no car reaches (over 10 m/s^2 within 7 s in 53 to 65 %
 of them): hard cases for any motion prior. ``lanes`` is how a car moves.
@@ -119,6 +123,19 @@ def lane_walks(ds, n: int, length: int, seed: int) -> np.ndarray:
     return out
 
 
+def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float) -> np.ndarray:
+    """``(n, length, 2)`` positions of our own vehicles on the street network with the mean speed
+    ``mean_speed`` m/s (and the maximum moved by as much): our habits at other speeds."""
+    from mmwsim.trajectories import generate_for_dataset, motion_model
+
+    base = motion_model("vehicle")
+    model = base.replace(mean_speed=mean_speed, max_speed=base.max_speed + mean_speed - base.mean_speed)
+    t = generate_for_dataset(
+        ds, {"vehicle": n}, length, seed, models={"vehicle": model}, vehicles_on_streets=True
+    )
+    return t.positions
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", help="training run folder (or model.pt)")
@@ -138,7 +155,19 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="lanes measured on the training trajectories, not the street map (Estimator.street_lanes = False)",
     )
+    ap.add_argument(
+        "--vehicle-speeds",
+        default="",
+        metavar="S1,S2",
+        help="add our own street vehicles at these mean speeds, m/s (e.g. 7.5,8.8,9.5)",
+    )
     args = ap.parse_args(argv)
+    try:
+        speeds = [float(v) for v in args.vehicle_speeds.split(",") if v.strip()]
+    except ValueError:
+        ap.error(f"--vehicle-speeds {args.vehicle_speeds!r}: give mean speeds in m/s, e.g. 7.5,8.8,9.5")
+    if not all(math.isfinite(v) and v > 0 for v in speeds):
+        ap.error(f"--vehicle-speeds {args.vehicle_speeds!r}: speeds must be positive numbers")
 
     import torch
 
@@ -161,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
         sets["smooth"][k] = smooth_walks(fs, k, args.n, args.length, rng)
         sets["events"][k] = event_walks(ds, k, args.n, args.length, args.seed + 1)
     sets["lanes"] = {"vehicle": lane_walks(ds, args.n, args.length, args.seed + 2)}
+    for v in speeds:
+        sets[f"own at {v:g} m/s"] = {"vehicle": shifted_walks(ds, args.n, args.length, args.seed + 3, v)}
     own, _ = load_splits(args.dataset, ("test/seen",), dataset=ds)
     seen = own["test/seen"]
     kinds = np.asarray(["static", "pedestrian", "hybrid", "vehicle"])[seen.kind]

@@ -22,7 +22,7 @@ from .errors import EstimationError
 from .matching import FingerprintMatcher
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
-from .smoothing.motion import MixtureMotion, MotionTable
+from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
@@ -200,9 +200,9 @@ class Estimator(nn.Module):
     Attributes
     ----------
     robust_motion : bool
-        Whether a grid-reading network's filter also weighs a broadened copy of the measured
-        motion for users who do not move like the training users (default True; see
-        :meth:`candidate_filter`).
+        Whether a grid-reading network's filter also weighs a broadened and a speed-pooled copy
+        of the measured motion for users who do not move like the training users (default True;
+        see :meth:`candidate_filter`).
     street_lanes : bool
         Whether a grid-reading network's lanes (where it expects fast users) come from the
         street map of the data it is attached to, where that has one, instead of the place
@@ -217,6 +217,7 @@ class Estimator(nn.Module):
         self.street_lanes = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
+        self._pooled: tuple[bytes, tuple | None] | None = None  # (digest, speed-pooled copies)
         self._lanes: tuple[bytes, tuple] | None = None  # (tables' and map's digest, lane copies)
         self.net = build_network(
             config.model,
@@ -308,15 +309,19 @@ class Estimator(nn.Module):
 
         With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
         the measured motion against their
-        :meth:`~estimation.smoothing.motion.MotionTable.broadened` copies by the evidence of each
-        user's fingerprints, for users who do not move like the training users."""
+        :meth:`~estimation.smoothing.motion.MotionTable.broadened` and
+        :meth:`~estimation.smoothing.motion.MotionTable.speed_pooled` copies (the latter where the
+        tables kept their speed bands' counts) by the evidence of each user's fingerprints, for
+        users who do not move like the training users."""
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
         if not bool(net.motion.fitted):  # the hand-set motion
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
         step = float(net.grid_step)
-        alternative = self._broadened_motion() if (self.robust_motion if robust is None else robust) else None
+        alternative = (
+            self._alternative_motion() if (self.robust_motion if robust is None else robust) else None
+        )
         return CandidateFilter(*self._lane_motion(), step, net.k, alternative=alternative)
 
     def _tables_digest(self, *extra: np.ndarray) -> bytes:
@@ -341,6 +346,30 @@ class Estimator(nn.Module):
         if self._lanes is None or self._lanes[0] != key:
             self._lanes = (key, net.lane_tables(*self._streets))
         return self._lanes[1]
+
+    def _alternative_motion(self) -> list[tuple[MotionTable, MotionTable | None]]:
+        """The alternatives the filter weighs the measured tables against: their broadened
+        copies, and their speed-pooled copies (with the same lanes as the measured ones) where the
+        tables kept their speed bands' counts (models trained before have the broadened only)."""
+        pooled = self._pooled_motion()
+        return [self._broadened_motion()] + ([pooled] if pooled is not None else [])
+
+    def _pooled_motion(self) -> tuple[MotionTable, MotionTable] | None:
+        """The motion tables' speed-pooled copies (:meth:`MotionTable.speed_pooled`), with the
+        attached street map's lanes where :meth:`_lane_motion` uses them; made again only when
+        the tables or the map change."""
+        net = self.net
+        lanes = self._streets is not None and self.street_lanes and net.motion.has_place
+        key = self._tables_digest(net.motion.band_count.numpy(), *(self._streets if lanes else ()))
+        if self._pooled is None or self._pooled[0] != key:
+            step = float(net.grid_step)
+            cell = net.motion.speed_pooled(POOLED_SPEED)
+            fine = net.motion_fine.speed_pooled(POOLED_SPEED / step)
+            tables = None if cell is None or fine is None else (cell, fine)
+            if tables is not None and lanes:
+                tables = net.lane_tables(*self._streets, tables=tables)
+            self._pooled = (key, tables)
+        return self._pooled[1]
 
     def _broadened_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The motion tables' broadened copies, made again only when the tables change (a

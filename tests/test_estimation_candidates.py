@@ -181,6 +181,37 @@ def test_broadened_table_mixes_turns_and_steering_noise_into_the_measured_one():
         table.broadened(turn=0.6, steer=0.6)
 
 
+def test_speed_pooled_table_mixes_the_fast_bands_by_their_samples():
+    tracks = _straight_tracks()
+    table = MotionTable().fit(tracks).fit_place(tracks, (0.0, 0.0), 2.0, (200, 200))
+    counts = table.band_count.numpy()
+    assert counts.sum() == len(tracks) * (tracks.shape[1] - 2)  # every acceleration sample once
+    pooled = table.speed_pooled(6.0)
+    lower = np.concatenate([[0.0], table.speed_edges.numpy()])
+    fast, slow = np.flatnonzero(lower >= 6.0), np.flatnonzero(lower < 6.0)
+    assert (counts[fast] > 0).sum() >= 2 and pooled.has_place
+    assert torch.equal(pooled.log_accel_table[slow], table.log_accel_table[slow])
+    # one density for every fast band: the count-weighted mixture of theirs, still a density
+    dens = table.log_accel_table[fast].double().exp()
+    expected = (dens * torch.from_numpy(counts[fast] / counts[fast].sum())[:, None, None]).sum(0)
+    for b in fast:
+        assert torch.allclose(pooled.log_accel_table[b].double().exp(), expected, rtol=1e-4, atol=1e-12)
+    assert float(pooled.log_accel_table[fast[0]].double().exp().sum() * pooled.bin**2) == pytest.approx(
+        1, abs=1e-3
+    )
+    # a steady user at 10 per step (a band the tracks only cross while speeding up or slowing
+    # down) now reads the steady driving of all fast bands
+    v, steady = torch.tensor([10.0, 0.0]), torch.tensor([0.1, 0.1])
+    assert float(pooled.log_accel(v, steady)) > float(table.log_accel(v, steady))
+    # nothing to pool: not fitted, no fast users, or saved before the counts were kept
+    assert MotionTable().speed_pooled() is None
+    assert MotionTable().fit(tracks / 8.0).speed_pooled(6.0) is None
+    state = {k: v for k, v in table.state_dict().items() if k != "band_count"}
+    old = MotionTable()
+    old.load_state_dict(state)
+    assert bool(old.fitted) and old.speed_pooled(6.0) is None
+
+
 def test_place_table_keeps_fast_users_in_their_lanes_and_leaves_slow_ones_alone():
     # fast users (3 m/step) only along the lane y = 2; walkers (0.5 m/step) anywhere
     lane = np.stack([np.arange(8) * 3.0, np.full(8, 2.0)], -1)[None].repeat(50, 0)
@@ -468,6 +499,22 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # the online filter splits the cells it finds likely so far and prunes pairs, so it is the
     # dense sub-cell smoother up to a few centimetres (exactly when nothing is pruned: test_online)
     assert (fine - subcell_mean(xy, post[..., 0], post[..., -1], lattice)).norm(dim=-1).max() < 0.05
+    # tables measured on fast users too (bands of 6 per step and up with samples) give the
+    # robust filter a third hypothesis, the speed-pooled tables, made once per set of tables
+    est.robust_motion = True
+    rng = np.random.default_rng(4)
+    speed = rng.choice([6.5, 8.0, 9.5], (300, 1, 1))
+    fast = (
+        lo
+        + 2.0
+        + np.concatenate(
+            [np.zeros((300, 1, 2)), np.cumsum(np.broadcast_to(speed * [1.0, 0.0], (300, 3, 2)), 1)], 1
+        )
+    )
+    est.net.fit_motion(np.concatenate([fast, tr.positions[:, :4]]), tr.grid_xy)
+    pooled = est._pooled_motion()
+    assert pooled is not None and est._pooled_motion() is pooled
+    assert est.candidate_filter().run(*found).model_weights().shape == (4, 3)
 
 
 def test_snap_to_lattice_keeps_grid_points_for_odd_and_centres_cells_for_even():

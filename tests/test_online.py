@@ -176,6 +176,13 @@ def test_an_alternative_that_is_the_same_model_changes_nothing():
     np.testing.assert_allclose(np.stack(one.positions), np.stack(two.positions), atol=1e-9)
     with pytest.raises(ValueError, match="prior"):
         CandidateFilter(MOTION, alternative=(MOTION, None), alternative_prior=1.0)
+    # several alternatives share the prior evenly: two copies of one are that one
+    three = CandidateFilter(
+        MOTION, k=8, beam=30, alternative=[(MOTION, None), (MOTION, None)], alternative_prior=0.3
+    ).run(xy, score)
+    np.testing.assert_allclose(three.model_weights(), np.tile([0.7, 0.15, 0.15], (3, 1)), atol=1e-12)
+    for a, b in zip(one.smooth(), three.smooth(), strict=True):
+        assert torch.allclose(a, b, atol=1e-5)
 
 
 def _turning_tracks(n, length, seed):

@@ -139,16 +139,19 @@ class CandidateTransformer(nn.Module):
         self.grid_step.fill_(spacing)
         return self
 
-    def lane_tables(self, lines: np.ndarray, grid_xy: np.ndarray) -> tuple[MotionTable, MotionTable]:
-        """Copies of both smoothers' motion tables whose place tables are a street map's lanes
+    def lane_tables(
+        self, lines: np.ndarray, grid_xy: np.ndarray, tables: tuple[MotionTable, MotionTable] | None = None
+    ) -> tuple[MotionTable, MotionTable]:
+        """Copies of both smoothers' motion tables (or of ``tables``, a cell-level and a sub-cell
+        table made from them) whose place tables are a street map's lanes
         (:meth:`MotionTable.fit_place_lines`) instead of the measured ones: street centre lines
         ``lines (e, 2, 2)`` metres over the grid points ``grid_xy (G, 2)`` metres users can be
-        at. The copies keep the measured motion; they are the tables' place part on the same
+        at. The copies keep the motion; they are the tables' place part on the same
         grid, lattice and speeds as :meth:`fit_motion`'s."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         lines = np.asarray(lines, dtype=np.float64)
         _, spacing, cell_frame, fine_frame = _place_frames(grid_xy)
-        cell, fine = copy.deepcopy(self.motion), copy.deepcopy(self.motion_fine)
+        cell, fine = copy.deepcopy(tables or (self.motion, self.motion_fine))
         cell.fit_place_lines(lines, *cell_frame, len(grid_xy))
         fine.fit_place_lines(lines / spacing, *fine_frame, len(grid_xy) * SUBCELLS**2, PLACE_SPEED / spacing)
         return cell, fine

@@ -201,14 +201,18 @@ class _Hypothesis:
         self.top: list[np.ndarray] = []  # (B, fine_k) cells split at every step
 
 
+_Models = tuple[MotionTable | MixtureMotion, MotionTable | None]  # a cell-level and a sub-cell model
+
+
 class CandidateFilter:
     """Forward filter (and prefix smoother) over per-step match candidates of a batch of users.
 
-    With an ``alternative`` motion model the filter runs both models over the same candidates
-    and averages them by their evidence: each user's track is the mixture of the two models'
-    results, weighted by ``p(model | fingerprints so far)``. A user who moves like the training
-    users keeps the measured model's sharp prior; one who does not (other speeds, sharp turns)
-    moves over to the broad one (:meth:`MotionTable.broadened`).
+    With ``alternative`` motion models the filter runs every model over the same candidates and
+    averages them by their evidence: each user's track is the mixture of the models' results,
+    weighted by ``p(model | fingerprints so far)``. A user who moves like the training users keeps
+    the measured model's sharp prior; one who does not moves over to an alternative: the broad
+    one (:meth:`MotionTable.broadened`) for sharp turns and unsteady speeds, the speed-pooled one
+    (:meth:`MotionTable.speed_pooled`) for steady driving at speeds the training users kept off.
 
     Parameters
     ----------
@@ -227,10 +231,11 @@ class CandidateFilter:
         Cells per step split into sub-cells.
     n_sub : int
         Sub-cells per axis.
-    alternative : (MotionTable, MotionTable or None), optional
-        A second cell-level and sub-cell motion model, as ``motion`` and ``motion_fine``.
+    alternative : (MotionTable, MotionTable or None), or a list of them, optional
+        Other cell-level and sub-cell motion models, as ``motion`` and ``motion_fine``.
     alternative_prior : float
-        Prior probability of the alternative model, in (0, 1).
+        Prior probability that a user moves by one of the alternatives, in (0, 1), shared
+        evenly among them.
     vague_gate : float or None
         Metres (plus the track's step length per step) a step whose fingerprint says little may
         lie from the nearest informative step before :meth:`smooth` puts it on their track
@@ -247,18 +252,20 @@ class CandidateFilter:
         fine_k: int = FINE_CELLS,
         fine_beam: int = FINE_BEAM,
         n_sub: int = SUBCELLS,
-        alternative: tuple[MotionTable | MixtureMotion, MotionTable | None] | None = None,
+        alternative: _Models | list[_Models] | None = None,
         alternative_prior: float = ALTERNATIVE_PRIOR,
         vague_gate: float | None = VAGUE_GATE,
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
         self.vague_gate = vague_gate
         self._models = [_Hypothesis(motion, motion_fine, beam, fine_beam)]
-        if alternative is not None:
+        alternatives = [alternative] if isinstance(alternative, tuple) else list(alternative or [])
+        if alternatives:
             if not 0.0 < alternative_prior < 1.0:
                 raise ValueError(f"the alternative model's prior must lie in (0, 1), got {alternative_prior}")
-            self._models.append(_Hypothesis(*alternative, beam, fine_beam))
-            self._log_prior = np.log([1.0 - alternative_prior, alternative_prior])
+            self._models += [_Hypothesis(*a, beam, fine_beam) for a in alternatives]
+            share = alternative_prior / len(alternatives)
+            self._log_prior = np.log([1.0 - alternative_prior] + [share] * len(alternatives))
         else:
             self._log_prior = np.zeros(1)
         off = (np.arange(n_sub) - (n_sub - 1) / 2) / n_sub

@@ -84,10 +84,13 @@ EVENT_HABITS = {
 }
 
 
-def _habit_walks(ds, kind: str, n: int, length: int, seed: int, on_streets: bool) -> np.ndarray:
+def _habit_walks(
+    ds, kind: str, n: int, length: int, seed: int, on_streets: bool, habits: dict | None = None
+) -> np.ndarray:
+    """Our generator's ``kind`` with ``habits`` (default :data:`EVENT_HABITS`) changed."""
     from mmwsim.trajectories import generate_for_dataset, motion_model
 
-    model = motion_model(kind).replace(**EVENT_HABITS[kind])
+    model = motion_model(kind).replace(**(EVENT_HABITS[kind] if habits is None else habits))
     t = generate_for_dataset(
         ds, {kind: n}, length, seed, models={kind: model}, vehicles_on_streets=on_streets
     )
@@ -126,14 +129,11 @@ def lane_walks(ds, n: int, length: int, seed: int) -> np.ndarray:
 def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float) -> np.ndarray:
     """``(n, length, 2)`` positions of our own vehicles on the street network with the mean speed
     ``mean_speed`` m/s (and the maximum moved by as much): our habits at other speeds."""
-    from mmwsim.trajectories import generate_for_dataset, motion_model
+    from mmwsim.trajectories import motion_model
 
     base = motion_model("vehicle")
-    model = base.replace(mean_speed=mean_speed, max_speed=base.max_speed + mean_speed - base.mean_speed)
-    t = generate_for_dataset(
-        ds, {"vehicle": n}, length, seed, models={"vehicle": model}, vehicles_on_streets=True
-    )
-    return t.positions
+    habits = dict(mean_speed=mean_speed, max_speed=base.max_speed + mean_speed - base.mean_speed)
+    return _habit_walks(ds, "vehicle", n, length, seed, on_streets=True, habits=habits)
 
 
 def main(argv: list[str] | None = None) -> int:

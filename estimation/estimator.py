@@ -340,12 +340,20 @@ class Estimator(nn.Module):
         as their place tables where it has one (and the tables have a measured place table to
         replace), made again only when the tables or the map change."""
         net = self.net
-        if self._streets is None or not self.street_lanes or not net.motion.has_place:
+        streets = self._map_lanes()
+        if streets is None:
             return net.motion, net.motion_fine
-        key = self._tables_digest(*self._streets)
+        key = self._tables_digest(*streets)
         if self._lanes is None or self._lanes[0] != key:
-            self._lanes = (key, net.lane_tables(*self._streets))
+            self._lanes = (key, net.lane_tables(*streets))
         return self._lanes[1]
+
+    def _map_lanes(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The attached data's street map (centre lines, grid points) where the filter's tables
+        take their lanes from it, else None (the tables keep their measured place tables)."""
+        if self._streets is None or not self.street_lanes or not self.net.motion.has_place:
+            return None
+        return self._streets
 
     def _alternative_motion(self) -> list[tuple[MotionTable, MotionTable | None]]:
         """The alternatives the filter weighs the measured tables against: their broadened
@@ -358,16 +366,14 @@ class Estimator(nn.Module):
         """The motion tables' speed-pooled copies (:meth:`MotionTable.speed_pooled`), with the
         attached street map's lanes where :meth:`_lane_motion` uses them; made again only when
         the tables or the map change."""
-        net = self.net
-        lanes = self._streets is not None and self.street_lanes and net.motion.has_place
-        key = self._tables_digest(net.motion.band_count.numpy(), *(self._streets if lanes else ()))
+        net, streets = self.net, self._map_lanes()
+        key = self._tables_digest(net.motion.band_count.numpy(), *(streets or ()))
         if self._pooled is None or self._pooled[0] != key:
-            step = float(net.grid_step)
             cell = net.motion.speed_pooled(POOLED_SPEED)
-            fine = net.motion_fine.speed_pooled(POOLED_SPEED / step)
+            fine = net.motion_fine.speed_pooled(POOLED_SPEED / float(net.grid_step))
             tables = None if cell is None or fine is None else (cell, fine)
-            if tables is not None and lanes:
-                tables = net.lane_tables(*self._streets, tables=tables)
+            if tables is not None and streets is not None:
+                tables = net.lane_tables(*streets, tables=tables)
             self._pooled = (key, tables)
         return self._pooled[1]
 

@@ -369,14 +369,13 @@ class MotionTable(nn.Module):
         """
         lower = np.concatenate([[0.0], self.speed_edges.double().numpy()])
         fast = np.flatnonzero(lower >= above)
-        w = self.band_count.double().numpy()[fast]
-        if not bool(self.fitted) or (w > 0).sum() < 2:
+        counts = self.band_count.double().numpy()
+        used = fast[counts[fast] > 0]
+        if not bool(self.fitted) or len(used) < 2:
             return None
         out = copy.deepcopy(self)
-        tables = self.log_accel_table[fast].double()
-        mix = torch.logsumexp(
-            tables + torch.from_numpy(np.log(np.maximum(w, 1e-300) / w.sum()))[:, None, None], 0
-        )
+        log_w = torch.from_numpy(np.log(counts[used] / counts[used].sum()))
+        mix = torch.logsumexp(self.log_accel_table[used].double() + log_w[:, None, None], 0)
         out.log_accel_table[fast] = mix.to(out.log_accel_table.dtype)
         return out
 

@@ -279,7 +279,7 @@ class Estimator(nn.Module):
                     f"{(self.n_beams, self.n_bins)}"
                 )
             self.matcher = FingerprintMatcher(pdp, xy, sigma, threshold)
-            self.matcher.scores(torch.zeros((1, self.n_beams, self.n_bins)))  # build the tables now
+            self.matcher.tile_index()  # build the tables now
         return self
 
     def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

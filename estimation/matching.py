@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from .noise import log_detection_probabilities
+from .tile_search import TileIndex
 
 __all__ = ["FingerprintMatcher", "GUIDE"]
 
@@ -66,8 +67,9 @@ class FingerprintMatcher:
         self.columns = torch.nonzero(torch.isfinite(flat).any(0)).flatten()
         self._w: torch.Tensor | None = None
         self._c: torch.Tensor | None = None
+        self._tiles: TileIndex | None = None
 
-    def _weights(self, rows: slice) -> tuple[torch.Tensor, torch.Tensor]:
+    def _weights(self, rows: slice | np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         pdp = self.grid_pdp[rows].reshape(-1, self.grid_pdp.shape[1] * self.grid_pdp.shape[2])
         pdp = pdp[:, self.columns].float()
         log_p, log_q = log_detection_probabilities(pdp, self.sigma, self.threshold, math.log(self.eps))
@@ -86,6 +88,25 @@ class FingerprintMatcher:
         assert self._c is not None
         return self._w, self._c
 
+    def tile_index(self) -> TileIndex:
+        """The grid's tiles with their weights (:class:`~estimation.tile_search.TileIndex`), built
+        on first use: what :meth:`candidates` and :meth:`track_candidates` search."""
+        if self._tiles is None:
+
+            def weights(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                w, c = self._weights(torch.from_numpy(rows))
+                return w.numpy(), c.numpy()
+
+            self._tiles = TileIndex(self.grid_xy, weights, len(self.columns))
+        return self._tiles
+
+    def _ones(self, bits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """The ones of ``bits (N, M, N_s)`` as rows of the weights: ``indptr (N + 1,)``, ``ones``."""
+        x = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])[:, self.columns]
+        nz = torch.nonzero(x)
+        indptr = torch.searchsorted(nz[:, 0].contiguous(), torch.arange(len(x) + 1))
+        return indptr.numpy(), nz[:, 1].contiguous().numpy()
+
     @torch.no_grad()
     def scores(self, bits: torch.Tensor) -> torch.Tensor:
         """Log-likelihood of every grid point: ``bits (N, M, N_s)`` -> ``(N, G)`` float32."""
@@ -98,15 +119,15 @@ class FingerprintMatcher:
         return torch.nn.functional.embedding_bag(nz[:, 1], w, offsets, mode="sum") + c
 
     @torch.no_grad()
-    def candidates(self, bits: torch.Tensor, k: int, block: int = 1024) -> tuple[torch.Tensor, torch.Tensor]:
-        """The ``k`` most likely grid points of each fingerprint, best first.
+    def candidates(self, bits: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The ``k`` most likely grid points of each fingerprint, best first (ties: lower row
+        first), searched tile by tile (:class:`~estimation.tile_search.TileIndex`): the same
+        points as the top ``k`` of :meth:`scores`.
 
         Parameters
         ----------
         bits : (..., M, N_s) tensor of 0/1
         k : int
-        block : int
-            Fingerprints scored at once (bounds the ``(block, G)`` score matrix).
 
         Returns
         -------
@@ -114,20 +135,13 @@ class FingerprintMatcher:
         rows : (..., k) int64 grid rows (indices into ``grid_xy``)
         """
         lead = bits.shape[:-2]
-        flat = bits.reshape(-1, *bits.shape[-2:])
         k = min(int(k), len(self.grid_pdp))
-        vals, rows = [], []
-        for a in range(0, len(flat), block):
-            v, i = self.scores(flat[a : a + block]).topk(k, dim=1)
-            vals.append(v)
-            rows.append(i)
-        if not vals:
-            return torch.zeros((*lead, k)), torch.zeros((*lead, k), dtype=torch.int64)
-        return torch.cat(vals).reshape(*lead, k), torch.cat(rows).reshape(*lead, k)
+        score, rows = self.tile_index().topk(*self._ones(bits.reshape(-1, *bits.shape[-2:])), k)
+        return torch.from_numpy(score).reshape(*lead, k), torch.from_numpy(rows).reshape(*lead, k)
 
     @torch.no_grad()
     def track_candidates(
-        self, bits: torch.Tensor, k: int, refs: np.ndarray | None = None, block: int = 256
+        self, bits: torch.Tensor, k: int, refs: np.ndarray | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         """Candidates of sequences of fingerprints, chosen with an eye on where each user goes.
 
@@ -149,8 +163,6 @@ class FingerprintMatcher:
         refs : (B, r, 2) float64, metres, optional
             The best candidates of the ``r <= 2`` steps before (the third output of an earlier
             call, for a tracker fed one step at a time).
-        block : int
-            Users scored at once per step.
 
         Returns
         -------
@@ -160,31 +172,27 @@ class FingerprintMatcher:
         """
         B, T = bits.shape[:2]
         k = min(int(k), len(self.grid_pdp))
-        gxy = torch.from_numpy(self.grid_xy).float()
-        ref = [] if refs is None else list(torch.from_numpy(np.asarray(refs, np.float32)).unbind(1))
+        tiles = self.tile_index()
+        ref = [] if refs is None else list(np.asarray(refs, np.float64).transpose(1, 0, 2))
         bonus, spread, per_step = GUIDE
         xs, ss = [], []
         for t in range(T):
-            vals, rows = [], []
-            for a in range(0, B, block):
-                sc = self.scores(bits[a : a + block, t])
-                top, i = sc.topk(k, dim=1)
-                # Only where the k-th point is about as likely as the best can the bonus matter.
-                vague = torch.nonzero(top[:, 0] - top[:, -1] < math.log1p(bonus)).flatten()
-                if ref and len(vague):
-                    last = ref[-1][a : a + block][vague]
-                    v = last - ref[-2][a : a + block][vague] if len(ref) > 1 else torch.zeros_like(last)
-                    s = spread + per_step * v.norm(dim=-1, keepdim=True)
-                    d2 = (gxy[None] - (last + v)[:, None]).square().sum(-1)
-                    key = sc[vague] + torch.log1p(bonus * torch.exp(-d2 / (2 * s * s)))
-                    i[vague] = key.topk(k, dim=1).indices
-                vals.append(sc.gather(1, i))
-                rows.append(i)
-            i = torch.cat(rows)
-            xs.append(torch.from_numpy(self.grid_xy[i.numpy()]).float())
-            ss.append(torch.cat(vals))
-            ref = (ref + [gxy[i[:, 0]]])[-2:]
-        refs_out = torch.stack(ref, 1).double().numpy() if ref else np.zeros((B, 0, 2))
+            indptr, ones = self._ones(bits[:, t])
+            score, rows = tiles.topk(indptr, ones, k)
+            # Only where the k-th point is about as likely as the best can the bonus matter.
+            vague = np.flatnonzero(score[:, 0] - score[:, -1] < math.log1p(bonus))
+            if ref and len(vague):
+                last = ref[-1][vague]
+                v = last - ref[-2][vague] if len(ref) > 1 else np.zeros_like(last)
+                s = spread + per_step * np.linalg.norm(v, axis=-1)
+                n_ones = indptr[vague + 1] - indptr[vague]
+                sub_ptr = np.r_[0, np.cumsum(n_ones)]
+                sub = np.repeat(indptr[vague] - sub_ptr[:-1], n_ones) + np.arange(sub_ptr[-1])
+                score[vague], rows[vague] = tiles.topk(sub_ptr, ones[sub], k, (last + v, s, bonus))
+            xs.append(torch.from_numpy(self.grid_xy[rows]).float())
+            ss.append(torch.from_numpy(score))
+            ref = (ref + [self.grid_xy[rows[:, 0]]])[-2:]
+        refs_out = np.stack(ref, 1) if ref else np.zeros((B, 0, 2))
         if not xs:
             return torch.zeros((B, 0, k, 2)), torch.zeros((B, 0, k)), refs_out
         return torch.stack(xs, 1), torch.stack(ss, 1), refs_out

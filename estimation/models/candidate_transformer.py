@@ -37,6 +37,7 @@ from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
 from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice
 from .embedding import sinusoidal_encoding
+from .encoder import encode
 
 __all__ = ["CandidateTransformer"]
 
@@ -184,7 +185,7 @@ class CandidateTransformer(nn.Module):
         near = (xy - fine[:, :, None]) / _SCALE
         feats = torch.cat([(xy - anchor) / _SCALE, near, post / 10.0], dim=-1)
         h = self.embed(feats) + self.rank.weight[:K] + sinusoidal_encoding(torch.arange(T), self.d)[:, None]
-        h = self.encoder(h.reshape(B, T * K, self.d)).reshape(B, T, K, self.d)
+        h = encode(self.encoder, h.reshape(B, T * K, self.d)).reshape(B, T, K, self.d)
         logits = self.logit(h)[..., 0] + (post * self.prior).sum(-1)
         w = torch.softmax(logits, dim=-1)  # (B, T, K)
         cells = (w[..., None] * xy).sum(2)

@@ -41,6 +41,7 @@ class MotionArrays(NamedTuple):
     bin: float
     reach: float
     place: tuple  # (place_speed, log_place (H, W) float32, origin (2,), res); see MotionTable
+    accel_prob: np.ndarray  # exp(accel_table): the kernels' sums multiply instead of exponentiate
 
 
 def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
@@ -54,13 +55,15 @@ def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
         motion.place_origin.double().numpy().copy(),
         float(motion.place_res),
     )
+    accel = motion.log_accel_table.double().numpy().copy()
     return MotionArrays(
         motion.log_step_table.double().numpy().copy(),
         motion.speed_edges.double().numpy().copy(),
-        motion.log_accel_table.double().numpy().copy(),
+        accel,
         float(motion.bin),
         float(motion.reach),
         place,
+        np.exp(accel),
     )
 
 
@@ -97,11 +100,17 @@ def _frame(vx, vy, speed_edges):
 
 
 @njit(cache=True, inline="always")
+def _accel_bin(ux, uy, ax, ay, n, bin_, reach):
+    # MotionTable.log_accel: the acceleration in the frame of the motion, in an n x n table.
+    i = min(max(int((ax * ux + ay * uy + reach) / bin_), 0), n - 1)
+    j = min(max(int((ay * ux - ax * uy + reach) / bin_), 0), n - 1)
+    return i, j
+
+
+@njit(cache=True, inline="always")
 def _log_accel(ux, uy, band, ax, ay, accel_table, bin_, reach):
-    # MotionTable.log_accel: the acceleration in the frame of the motion, one table per speed band.
-    last = accel_table.shape[1] - 1
-    i = min(max(int((ax * ux + ay * uy + reach) / bin_), 0), last)
-    j = min(max(int((ay * ux - ax * uy + reach) / bin_), 0), last)
+    # MotionTable.log_accel: one table per speed band.
+    i, j = _accel_bin(ux, uy, ax, ay, accel_table.shape[1], bin_, reach)
     return accel_table[band, i, j]
 
 
@@ -243,7 +252,7 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
 
 
 @njit(cache=True, nogil=True)
-def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_, reach, place):
+def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_, reach, place, accel_prob):
     """One forward step of the beam: pairs ``(x_t-2, x_t-1)`` to pairs ``(x_t-1, x_t)``.
 
     Parameters
@@ -252,43 +261,53 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
     pi, ci, la : (B, M') the kept pairs of step t-1 (see :func:`pair_start`)
     lp : (B, K) float64; log likelihoods of step t
     M : int, beam width
-    speed_edges, accel_table, bin_, reach, place : the motion's acceleration and place tables
+    speed_edges, accel_table, bin_, reach, place, accel_prob : the motion's acceleration and
+        place tables (:class:`MotionArrays`)
 
     Returns
     -------
     pi, ci, la, marg : as :func:`pair_start`, for step t
     """
     B, Kp, K, Mp = xp.shape[0], xp.shape[1], xc.shape[1], pi.shape[1]
+    n_acc = accel_table.shape[1]
     npi = np.empty((B, M), np.int64)
     nci = np.empty((B, M), np.int64)
     nla = np.empty((B, M))
     marg = np.empty((B, K))
     sc = np.empty((Mp, K))
+    cell = np.empty((Mp, K), np.int64)  # the acceleration's entry in the flattened table
+    prob = accel_prob.ravel()
     dense = np.empty((Kp, K))
+    # The beam is sorted by message, largest first: once a pair's message plus the likeliest
+    # acceleration lies _NEGLIGIBLE below the best term so far, its terms and those of every
+    # pair after it would be skipped below; they are not computed.
+    a_max = accel_table.max()
     for b in range(B):
         top = -np.inf
+        used = Mp
         for q in range(Mp):
-            if la[b, q] <= _NEG:
-                sc[q, :] = _NEG
-                continue
+            if la[b, q] <= _NEG or la[b, q] + a_max - top < _NEGLIGIBLE:
+                used = q
+                break
             a0, a1 = pi[b, q], ci[b, q]
             vx, vy = xp[b, a1, 0] - xpp[b, a0, 0], xp[b, a1, 1] - xpp[b, a0, 1]
             ux, uy, band = _frame(vx, vy, speed_edges)
             for j in range(K):
                 ax = xc[b, j, 0] - xp[b, a1, 0] - vx
                 ay = xc[b, j, 1] - xp[b, a1, 1] - vy
-                v = la[b, q] + _log_accel(ux, uy, band, ax, ay, accel_table, bin_, reach)
+                u, w = _accel_bin(ux, uy, ax, ay, n_acc, bin_, reach)
+                v = la[b, q] + accel_table[band, u, w]
                 sc[q, j] = v
+                cell[q, j] = (band * n_acc + u) * n_acc + w
                 top = max(top, v)
+        # sum_q exp(la_q + a_qj - top) as exp(la_q - top) exp(a_qj): one exponential per pair
         dense[:, :] = 0.0
-        for q in range(Mp):
-            if la[b, q] <= _NEG:
-                continue
+        for q in range(used):
             a1 = ci[b, q]
+            scale = math.exp(la[b, q] - top)
             for j in range(K):
-                e = sc[q, j] - top
-                if e > _NEGLIGIBLE:
-                    dense[a1, j] += math.exp(e)
+                if sc[q, j] - top > _NEGLIGIBLE:
+                    dense[a1, j] += scale * prob[cell[q, j]]
         for i in range(Kp):
             for j in range(K):
                 d = dense[i, j]
@@ -305,64 +324,101 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
 
 
 @njit(cache=True, nogil=True)
+def group_pairs(pi, la, Kp):
+    """The kept pairs of a step grouped by their candidate at the step before, so that a backward
+    step visits from each pair of the step before only the pairs it continues into.
+
+    Parameters
+    ----------
+    pi, la : (B, M) a step's kept pairs (see :func:`pair_start`)
+    Kp : int, candidates of the step before
+
+    Returns
+    -------
+    order : (B, M) int64; the kept pairs by their candidate at the step before (stable)
+    start : (B, Kp + 1) int64; candidate ``i``'s pairs are ``order[start[i]:start[i + 1]]``
+    """
+    B, M = pi.shape
+    order = np.zeros((B, M), np.int64)
+    start = np.zeros((B, Kp + 1), np.int64)
+    for b in range(B):
+        n = 0
+        while n < M and la[b, n] > _NEG:
+            n += 1
+        order[b, :n] = np.argsort(pi[b, :n], kind="mergesort")
+        for q in range(n):
+            start[b, pi[b, q] + 1] += 1
+        for i in range(Kp):
+            start[b, i + 1] += start[b, i]
+    return order, start
+
+
+# fmt: off
+@njit(cache=True, nogil=True)
 def pair_backward(
-    xpp, xp, xc, ppi, pci, pla, pi, ci, la, beta, lp, speed_edges, accel_table, bin_, reach, place
+    xpp, xp, xc, ppi, pci, pla, order, start, ci, beta, lp,
+    speed_edges, accel_table, bin_, reach, place, accel_prob,
 ):
+    # fmt: on
     """One backward step: the backward messages of the kept pairs of step t-1 from those of step t.
 
     Parameters
     ----------
     xpp, xp, xc : (B, K, 2) float64; candidates of steps t-2, t-1 and t
     ppi, pci, pla : (B, Mp) kept pairs of step t-1 and their forward messages
-    pi, ci, la : (B, M) kept pairs of step t and their forward messages
+    order, start : the kept pairs of step t grouped by their candidate at t-1 (:func:`group_pairs`)
+    ci : (B, M) their candidates at step t
     beta : (B, M) float64; their backward log messages (0 at the last step)
     lp : (B, K) float64; log likelihoods of step t
+    speed_edges, accel_table, bin_, reach, place, accel_prob : the motion's tables
 
     Returns
     -------
     (B, Mp) float64 backward log messages of step t-1 (``_NEG`` for padding)
     """
-    B, Kp, M, Mp = xp.shape[0], xp.shape[1], pi.shape[1], ppi.shape[1]
+    B, M, Mp = ci.shape[0], ci.shape[1], ppi.shape[1]
+    Kp = xp.shape[1]
+    n_acc = accel_table.shape[1]
+    # a term whose rest lies this far below its group's largest stays _NEGLIGIBLE below the sum
+    # whatever the accelerations
+    floor = _NEGLIGIBLE - (accel_table.max() - accel_table.min())
     out = np.full((B, Mp), _NEG)
-    vals = np.empty(M)
+    # per pair of step t, what does not depend on the pair of t-1 it continues: its place,
+    # likelihood and backward message, and the largest of them over its candidate's group
+    rest = np.empty(M)
+    scale = np.empty(M)
+    head = np.empty(Kp)
     for b in range(B):
-        # The kept pairs of step t (a prefix of the beam) grouped by their candidate at t-1, so
-        # that each pair of t-1 visits only the pairs it continues into.
-        n = 0
-        while n < M and la[b, n] > _NEG:
-            n += 1
-        order = np.argsort(pi[b, :n], kind="mergesort")
-        start = np.zeros(Kp + 1, np.int64)
-        for q in range(n):
-            start[pi[b, q] + 1] += 1
+        head[:] = -np.inf
         for i in range(Kp):
-            start[i + 1] += start[i]
+            for r in range(start[b, i], start[b, i + 1]):
+                m = order[b, r]
+                if beta[b, m] <= _NEG:
+                    rest[m] = -np.inf
+                    continue
+                j = ci[b, m]
+                wx, wy = xc[b, j, 0] - xp[b, i, 0], xc[b, j, 1] - xp[b, i, 1]
+                rest[m] = _log_place(xc[b, j, 0], xc[b, j, 1], wx, wy, place) + lp[b, j] + beta[b, m]
+                head[i] = max(head[i], rest[m])
+            for r in range(start[b, i], start[b, i + 1]):
+                m = order[b, r]
+                scale[m] = math.exp(rest[m] - head[i]) if rest[m] - head[i] > floor else 0.0
         for q in range(Mp):
             if pla[b, q] <= _NEG:
                 continue
             a0, a1 = ppi[b, q], pci[b, q]
+            if head[a1] == -np.inf:
+                continue
             vx, vy = xp[b, a1, 0] - xpp[b, a0, 0], xp[b, a1, 1] - xpp[b, a0, 1]
             ux, uy, band = _frame(vx, vy, speed_edges)
-            top = -np.inf
-            c = 0
-            for r in range(start[a1], start[a1 + 1]):
-                m = order[r]
-                if beta[b, m] <= _NEG:
-                    continue
-                j = ci[b, m]
-                wx, wy = xc[b, j, 0] - xp[b, a1, 0], xc[b, j, 1] - xp[b, a1, 1]
-                v = (
-                    _log_accel(ux, uy, band, wx - vx, wy - vy, accel_table, bin_, reach)
-                    + _log_place(xc[b, j, 0], xc[b, j, 1], wx, wy, place)
-                    + lp[b, j]
-                    + beta[b, m]
-                )
-                vals[c] = v
-                c += 1
-                top = max(top, v)
-            if c:
-                acc = 0.0
-                for r in range(c):
-                    acc += math.exp(vals[r] - top)
-                out[b, q] = math.log(acc) + top
+            acc = 0.0
+            for r in range(start[b, a1], start[b, a1 + 1]):
+                m = order[b, r]
+                if scale[m] > 0.0:
+                    j = ci[b, m]
+                    wx, wy = xc[b, j, 0] - xp[b, a1, 0], xc[b, j, 1] - xp[b, a1, 1]
+                    u, w = _accel_bin(ux, uy, wx - vx, wy - vy, n_acc, bin_, reach)
+                    acc += accel_prob[band, u, w] * scale[m]
+            if acc > 0.0:
+                out[b, q] = math.log(acc) + head[a1]
     return out

@@ -66,8 +66,17 @@ def _step_distances(xy: torch.Tensor) -> torch.Tensor:
     return torch.cdist(x[:, :-1], x[:, 1:]).square()
 
 
-def _random_walk(d2: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> torch.Tensor:
-    """:func:`motion_posterior` from the squared step distances ``d2`` of :func:`_step_distances`.
+def _rw_transitions(d2: torch.Tensor, step_sigma: float) -> torch.Tensor:
+    """Random-walk transition weights ``(B, T-1, K, K)`` float64 from the squared step distances
+    ``d2`` of :func:`_step_distances`."""
+    return torch.exp(d2 * (-0.5 / step_sigma**2))
+
+
+def _random_walk(
+    d2: torch.Tensor | None, logp: torch.Tensor, step_sigma: float, trans: torch.Tensor | None = None
+) -> torch.Tensor:
+    """:func:`motion_posterior` from the squared step distances ``d2`` of :func:`_step_distances`
+    (or their :func:`_rw_transitions`, ``trans``, when given; ``d2`` is then unused).
 
     The sums over the previous (next) step's candidates are matrix products in linear space, each
     step rescaled by its largest log value: about twice as fast as log-sum-exp over ``(K, K)``
@@ -75,7 +84,9 @@ def _random_walk(d2: torch.Tensor, logp: torch.Tensor, step_sigma: float) -> tor
     a candidate no earlier candidate can reach at all is floored at ``exp(-690)`` instead of
     ``-inf``, so a sequence whose steps are all that far apart degrades to per-step likelihoods.
     """
-    trans = torch.exp(d2 * (-0.5 / step_sigma**2))  # (B, T-1, K, K), float64
+    if trans is None:
+        assert d2 is not None
+        trans = _rw_transitions(d2, step_sigma)
     lp = logp.double()
     T = lp.shape[1]
 

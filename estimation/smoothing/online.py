@@ -32,8 +32,8 @@ import torch
 from mmwsim._threads import pieces, thread_map
 
 from ..matching import GUIDE
-from .beam import motion_arrays, pair_backward, pair_forward, pair_start, rw_step
-from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _step_distances
+from .beam import group_pairs, motion_arrays, pair_backward, pair_forward, pair_start, rw_step
+from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _rw_transitions, _step_distances
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
 __all__ = ["ALTERNATIVE_PRIOR", "BEAM", "FINE_BEAM", "FINE_CELLS", "VAGUE_GATE", "CandidateFilter"]
@@ -83,6 +83,9 @@ class _Beam:
         self.xy: list[np.ndarray] = []  # (B, K, 2) per step
         self.lp: list[np.ndarray] = []  # (B, K) per step
         self.pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
+        # step -> its pairs grouped by their candidate at the step before, made by the first
+        # backward pass through the step and kept for the next prefix's
+        self._groups: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.marg: list[np.ndarray] = []  # (B, K) filtered log marginals
         self.evidence: list[np.ndarray] = []  # (B,) log evidence of the steps so far
 
@@ -99,7 +102,7 @@ class _Beam:
         else:
             *pairs, marg = _threaded(
                 pair_forward, 7, self.xy[-2], self.xy[-1], xy, *self.pairs[-1], lp,
-                self.beam, m.speed_edges, m.accel_table, m.bin, m.reach, m.place,
+                self.beam, m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
@@ -110,6 +113,12 @@ class _Beam:
         la = pairs[2] if pairs is not None else lp
         self.evidence.append(np.asarray(torch.logsumexp(torch.from_numpy(la), dim=1)))
         return marg
+
+    def _grouped_pairs(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        if t not in self._groups:
+            pi, _, la = self.pairs[t]
+            self._groups[t] = _threaded(group_pairs, 2, pi, la, self.xy[t - 1].shape[1])
+        return self._groups[t]
 
     def smooth(self, T: int) -> list[np.ndarray]:
         """Smoothed log marginals ``(B, K)`` of the first ``T`` steps given those ``T`` steps."""
@@ -127,8 +136,8 @@ class _Beam:
                 out[0] = _grouped(joint, pi, self.xy[0].shape[1])
                 break
             beta = _threaded(
-                pair_backward, 11, self.xy[t - 2], self.xy[t - 1], self.xy[t], *self.pairs[t - 1], pi, ci, la, beta, self.lp[t],
-                m.speed_edges, m.accel_table, m.bin, m.reach, m.place,
+                pair_backward, 11, self.xy[t - 2], self.xy[t - 1], self.xy[t], *self.pairs[t - 1], *self._grouped_pairs(t), ci, beta, self.lp[t],
+                m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
             )  # fmt: skip
         return out
 
@@ -272,6 +281,7 @@ class CandidateFilter:
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
         self._rw: np.ndarray | None = None  # (B, k, n_s) filtered random-walk posteriors
+        self._trans: list[torch.Tensor] | None = None  # see _transitions
         self.positions: list[np.ndarray] = []  # (B, 2) filtered estimate of every step
         self.vague: list[np.ndarray] = []  # (B,) bool per step: its fingerprint says little
 
@@ -365,7 +375,6 @@ class CandidateFilter:
             raise ValueError(f"can smooth 1..{self.steps} steps, not {T}")
         xy = torch.from_numpy(np.stack(self.cells.xy[:T], 1)).float()
         lp = torch.from_numpy(np.stack(self.cells.lp[:T], 1)).float()
-        d2 = _step_distances(xy)
         w = torch.from_numpy(self.model_weights(T))[:, None, None]  # (B, 1, 1, n_models)
         p = torch.zeros(xy.shape[:3], dtype=torch.float64)
         fine = torch.zeros(xy.shape[0], T, 2, dtype=torch.float64)
@@ -374,11 +383,23 @@ class CandidateFilter:
             p += w[..., i] * pi
             fine += w[..., i] * fi
         cv = p.log().clamp(min=-1e300).float()
-        post = torch.stack([lp] + [_random_walk(d2, lp, s) for s in STEP_SIGMAS] + [cv], -1)
+        rw = [
+            _random_walk(None, lp, s, tr[:, : T - 1])
+            for s, tr in zip(STEP_SIGMAS, self._transitions(), strict=True)
+        ]
+        post = torch.stack([lp, *rw, cv], -1)
         if self.vague_gate is not None:
             shift = torch.from_numpy(_vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate))
             xy, fine = xy + shift[:, :, None].float(), fine + shift
         return xy, post.clamp(min=LOGP_FLOOR), fine.float()
+
+    def _transitions(self) -> list[torch.Tensor]:
+        """The random-walk transition weights ``(B, steps - 1, k, k)`` of every step scale, made
+        once for all steps so far and shared by the prefixes' smoothing."""
+        if self._trans is None or self._trans[0].shape[1] != self.steps - 1:
+            d2 = _step_distances(torch.from_numpy(np.stack(self.cells.xy, 1)).float())
+            self._trans = [_rw_transitions(d2, s) for s in STEP_SIGMAS]
+        return self._trans
 
     def _smooth_one(self, h: _Hypothesis, T: int, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """One motion model's smoothed cell marginals ``(B, T, k)`` and positions ``(B, T, 2)``

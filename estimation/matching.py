@@ -46,9 +46,12 @@ class FingerprintMatcher:
 
     Notes
     -----
-    The weights ``logit p`` are built once, ``(C, G)`` float32 for the ``C`` fingerprint entries in
-    which any grid point has signal (about 200 MB for the default data set), so that scoring a
-    fingerprint is a sum of the weight rows of its ones.
+    The weights ``logit p`` are built on first use, for the ``C`` fingerprint entries in which any
+    grid point has signal, so that scoring a fingerprint is a sum of the weight rows of its ones.
+    :meth:`candidates`, :meth:`track_candidates` and :meth:`match` search them tile by tile
+    (:class:`~estimation.tile_search.TileIndex`, 515 MB for the default data set's 79,097 points
+    and 1,472 entries); :meth:`scores`, every point's log-likelihood, reads them as one dense
+    ``(C, G)`` float32 table (466 MB), built only if it is called.
     """
 
     def __init__(

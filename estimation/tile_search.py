@@ -149,6 +149,11 @@ class TileIndex:
         N = len(indptr) - 1
         score = np.empty((N, k), np.float32)
         row = np.empty((N, k), np.int64)
+        self.scored = 0
+        if k < 1 or N == 0:
+            return score, row
+        if k > int(self.count.sum()):
+            raise ValueError(f"{k} best of a grid of {int(self.count.sum())} points")
         if guide is None:
             pred, inv2s2, bonus = np.zeros((N, 2)), np.zeros(N), 0.0
         else:

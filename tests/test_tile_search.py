@@ -89,6 +89,7 @@ def test_candidates_are_the_dense_top_k(kind):
     s3, r3 = m.candidates(bits[:6].reshape(2, 3, *bits.shape[1:]), 7)
     assert torch.equal(r3.reshape(6, 7), m.candidates(bits[:6], 7)[1]) and s3.shape == (2, 3, 7)
     assert sorted(m.candidates(bits[:1], 10 * len(xy))[1][0].tolist()) == list(range(len(xy)))
+    assert m.candidates(bits[:0], 5)[1].shape == (0, 5) and m.candidates(bits[:3], 0)[1].shape == (3, 0)
 
 
 @pytest.mark.parametrize("kind", ["smooth", "rough", "blocky"])

@@ -93,6 +93,13 @@ def test_a_prefix_never_sees_the_steps_after_it():
     longer = CandidateFilter(MOTION, k=6, beam=20).run(xy, score).smooth(4)
     for a, b in zip(short, longer, strict=True):
         assert torch.equal(a, b)
+    # smoothing between updates (what it keeps for the next prefix) changes nothing
+    stepwise = CandidateFilter(MOTION, k=6, beam=20)
+    for t in range(7):
+        stepwise.update(xy[:, t], score[:, t])
+        got = stepwise.smooth()
+    for a, b in zip(got, CandidateFilter(MOTION, k=6, beam=20).run(xy, score).smooth(), strict=True):
+        assert torch.equal(a, b)
 
 
 def test_same_bytes_whatever_the_batch_and_the_threads():

@@ -395,10 +395,15 @@ class CandidateFilter:
 
     def _transitions(self) -> list[torch.Tensor]:
         """The random-walk transition weights ``(B, steps - 1, k, k)`` of every step scale, made
-        once for all steps so far and shared by the prefixes' smoothing."""
-        if self._trans is None or self._trans[0].shape[1] != self.steps - 1:
-            d2 = _step_distances(torch.from_numpy(np.stack(self.cells.xy, 1)).float())
-            self._trans = [_rw_transitions(d2, s) for s in STEP_SIGMAS]
+        once per step and shared by the prefixes' smoothing."""
+        done = 0 if self._trans is None else self._trans[0].shape[1]
+        if self._trans is None or done < self.steps - 1:
+            d2 = _step_distances(torch.from_numpy(np.stack(self.cells.xy[done:], 1)).float())
+            new = [_rw_transitions(d2, s) for s in STEP_SIGMAS]
+            self._trans = (
+                new if self._trans is None else [torch.cat(p, 1) for p in zip(self._trans, new, strict=True)]
+            )
+        assert self._trans is not None
         return self._trans
 
     def _smooth_one(self, h: _Hypothesis, T: int, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -114,12 +114,11 @@ class FingerprintMatcher:
     def scores(self, bits: torch.Tensor) -> torch.Tensor:
         """Log-likelihood of every grid point: ``bits (N, M, N_s)`` -> ``(N, G)`` float32."""
         w, c = self._tables()
-        x = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])[:, self.columns]
         # Fingerprints are sparse (a few percent ones): x @ W as a sum of W's rows over the ones,
         # i.e. an embedding bag, is several times faster than the dense product.
-        nz = torch.nonzero(x)
-        offsets = torch.searchsorted(nz[:, 0].contiguous(), torch.arange(len(x)))
-        return torch.nn.functional.embedding_bag(nz[:, 1], w, offsets, mode="sum") + c
+        indptr, ones = self._ones(bits)
+        offsets = torch.from_numpy(indptr[:-1])
+        return torch.nn.functional.embedding_bag(torch.from_numpy(ones), w, offsets, mode="sum") + c
 
     @torch.no_grad()
     def candidates(self, bits: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -92,6 +92,7 @@ class TileIndex:
         self.n_tiles = n_tiles
         self.rows = np.full((n_tiles, TILE_POINTS), -1, np.int64)  # grid row of every slot
         self.rows[tile_of, slot] = order
+        self.n_points = len(order)
         self.count = np.bincount(tile_of, minlength=n_tiles).astype(np.int64)
         self.xy = np.zeros((n_tiles, TILE_POINTS, 2))
         self.xy[tile_of, slot] = xy[order]
@@ -152,8 +153,8 @@ class TileIndex:
         self.scored = 0
         if k < 1 or N == 0:
             return score, row
-        if k > int(self.count.sum()):
-            raise ValueError(f"{k} best of a grid of {int(self.count.sum())} points")
+        if k > self.n_points:
+            raise ValueError(f"{k} best of a grid of {self.n_points} points")
         if guide is None:
             pred, inv2s2, bonus = np.zeros((N, 2)), np.zeros(N), 0.0
         else:

@@ -101,17 +101,11 @@ def _frame(vx, vy, speed_edges):
 
 @njit(cache=True, inline="always")
 def _accel_bin(ux, uy, ax, ay, n, bin_, reach):
-    # MotionTable.log_accel: the acceleration in the frame of the motion, in an n x n table.
+    # MotionTable.log_accel: the acceleration in the frame of the motion, in a speed band's
+    # n x n table.
     i = min(max(int((ax * ux + ay * uy + reach) / bin_), 0), n - 1)
     j = min(max(int((ay * ux - ax * uy + reach) / bin_), 0), n - 1)
     return i, j
-
-
-@njit(cache=True, inline="always")
-def _log_accel(ux, uy, band, ax, ay, accel_table, bin_, reach):
-    # MotionTable.log_accel: one table per speed band.
-    i, j = _accel_bin(ux, uy, ax, ay, accel_table.shape[1], bin_, reach)
-    return accel_table[band, i, j]
 
 
 @njit(cache=True, inline="always")

@@ -57,7 +57,7 @@ def motion_posterior(xy: torch.Tensor, logp: torch.Tensor, step_sigma: float) ->
     -------
     (B, T, K) float32 log posteriors, normalised per step
     """
-    return _random_walk(_step_distances(xy), logp, step_sigma)
+    return _random_walk(_rw_transitions(_step_distances(xy), step_sigma), logp)
 
 
 def _step_distances(xy: torch.Tensor) -> torch.Tensor:
@@ -72,11 +72,8 @@ def _rw_transitions(d2: torch.Tensor, step_sigma: float) -> torch.Tensor:
     return torch.exp(d2 * (-0.5 / step_sigma**2))
 
 
-def _random_walk(
-    d2: torch.Tensor | None, logp: torch.Tensor, step_sigma: float, trans: torch.Tensor | None = None
-) -> torch.Tensor:
-    """:func:`motion_posterior` from the squared step distances ``d2`` of :func:`_step_distances`
-    (or their :func:`_rw_transitions`, ``trans``, when given; ``d2`` is then unused).
+def _random_walk(trans: torch.Tensor, logp: torch.Tensor) -> torch.Tensor:
+    """:func:`motion_posterior` from the transition weights ``trans`` of :func:`_rw_transitions`.
 
     The sums over the previous (next) step's candidates are matrix products in linear space, each
     step rescaled by its largest log value: about twice as fast as log-sum-exp over ``(K, K)``
@@ -84,9 +81,6 @@ def _random_walk(
     a candidate no earlier candidate can reach at all is floored at ``exp(-690)`` instead of
     ``-inf``, so a sequence whose steps are all that far apart degrades to per-step likelihoods.
     """
-    if trans is None:
-        assert d2 is not None
-        trans = _rw_transitions(d2, step_sigma)
     lp = logp.double()
     T = lp.shape[1]
 
@@ -194,7 +188,7 @@ def candidate_features(
         x, sc = xy[a : a + block].float(), score[a : a + block].float()
         logp = torch.log_softmax(sc, dim=-1)
         d2 = _step_distances(x)
-        post = torch.stack([logp] + [_random_walk(d2, logp, s) for s in STEP_SIGMAS], -1)
+        post = torch.stack([logp] + [_random_walk(_rw_transitions(d2, s), logp) for s in STEP_SIGMAS], -1)
         keep = post[..., 1:].amax(-1).topk(min(k, x.shape[2]), dim=-1).indices  # (b, T, k)
         kxy = torch.gather(x, 2, keep[..., None].expand(-1, -1, -1, 2))
         kpost = torch.gather(post, 2, keep[..., None].expand(-1, -1, -1, post.shape[-1]))

@@ -383,10 +383,7 @@ class CandidateFilter:
             p += w[..., i] * pi
             fine += w[..., i] * fi
         cv = p.log().clamp(min=-1e300).float()
-        rw = [
-            _random_walk(None, lp, s, tr[:, : T - 1])
-            for s, tr in zip(STEP_SIGMAS, self._transitions(), strict=True)
-        ]
+        rw = [_random_walk(trans[:, : T - 1], lp) for trans in self._transitions()]
         post = torch.stack([lp, *rw, cv], -1)
         if self.vague_gate is not None:
             shift = torch.from_numpy(_vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate))

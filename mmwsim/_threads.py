@@ -8,7 +8,9 @@ several workers sharing the cores (``mmwsim generate``'s pool) sets :func:`set_t
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 __all__ = ["cores", "threads", "set_threads", "thread_map", "pieces"]
@@ -39,14 +41,38 @@ def set_threads(n: int | None) -> None:
 
 
 def thread_map(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
-    """``[fn(x) for x in items]`` on up to :func:`threads` threads, results in order."""
-    n = min(threads(), len(items))
-    if n <= 1:
-        return [fn(x) for x in items]
-    from concurrent.futures import ThreadPoolExecutor
+    """``[fn(x) for x in items]`` on up to :func:`threads` threads, results in order.
 
-    with ThreadPoolExecutor(n) as pool:
-        return list(pool.map(fn, items))
+    The threads are kept between calls (starting them costs more than a small kernel); a call
+    from one of them runs in that thread, so nested calls cannot wait on each other."""
+    n = min(threads(), len(items))
+    if n <= 1 or threading.current_thread().name.startswith(_PREFIX):
+        return [fn(x) for x in items]
+    return list(_pool(n).map(fn, items))
+
+
+_PREFIX = "mmwsim-thread"
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    with _pools_lock:
+        if n not in _pools:
+            _pools[n] = ThreadPoolExecutor(n, thread_name_prefix=f"{_PREFIX}-{n}")
+        return _pools[n]
+
+
+def _forget_pools() -> None:
+    # A forked worker (mmwsim generate's pool) has none of its parent's threads, and the lock
+    # may have been held by one of them.
+    global _pools_lock
+    _pools.clear()
+    _pools_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pools)
 
 
 def pieces(n: int, min_piece: int, max_piece: int | None = None) -> list[slice]:

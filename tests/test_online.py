@@ -64,8 +64,23 @@ def test_forward_filter_equals_the_smoothers_last_step_marginal(beam, motion):
     f = CandidateFilter(motion, k=10, beam=beam)
     for t in range(7):
         f.update(xy[:, t], score[:, t])
-        smoothed_last = f.cells.smooth(t + 1)[-1]
+        smoothed_last = f.cells.smooth(t + 1)[:, -1]
         np.testing.assert_allclose(np.exp(f.cells.marg[-1]), np.exp(smoothed_last), atol=1e-9)
+
+
+def test_the_beam_keeps_the_largest_pairs_in_index_order_ties_included_by_index():
+    from estimation.smoothing.beam import _NEG, _keep_best
+
+    dense = np.array([[1.0, 5.0, 3.0], [3.0, _NEG, 4.0], [3.0, 2.0, 0.5]])
+    pi, ci, la = np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4)
+    # the 4 largest: 5 and 4, then two of the three 3s, the first two in index order
+    assert _keep_best(dense, 4, pi, ci, la) == 4
+    assert list(zip(pi, ci, la, strict=True)) == [(0, 1, 5.0), (0, 2, 3.0), (1, 0, 3.0), (1, 2, 4.0)]
+    # a beam wider than the finite entries keeps them all, in index order, then padding
+    pi, ci, la = np.empty(10, np.int64), np.empty(10, np.int64), np.empty(10)
+    assert _keep_best(dense, 10, pi, ci, la) == 8
+    assert list(la[:8]) == [1.0, 5.0, 3.0, 3.0, 4.0, 3.0, 2.0, 0.5] and (la[8:] == _NEG).all()
+    assert list(pi[:8]) == [0, 0, 0, 1, 1, 2, 2, 2]
 
 
 @pytest.mark.parametrize("place", [False, True], ids=["motion", "with-place"])
@@ -88,11 +103,14 @@ def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
 
 
 def test_a_prefix_never_sees_the_steps_after_it():
-    xy, score = _candidates(T=7)
-    short = CandidateFilter(MOTION, k=6, beam=20).run(xy[:, :4], score[:, :4]).smooth()
-    longer = CandidateFilter(MOTION, k=6, beam=20).run(xy, score).smooth(4)
-    for a, b in zip(short, longer, strict=True):
-        assert torch.equal(a, b)
+    xy, score = _candidates(T=19)
+    # 19 steps: the stored steps outgrow their first buffers (8 steps) twice
+    longer = CandidateFilter(MOTION, k=6, beam=20).run(xy, score)
+    for T in (4, 9, 17):
+        short = CandidateFilter(MOTION, k=6, beam=20).run(xy[:, :T], score[:, :T]).smooth()
+        for a, b in zip(short, longer.smooth(T), strict=True):
+            assert torch.equal(a, b)
+    xy, score = xy[:, :7], score[:, :7]
     # smoothing between updates (what it keeps for the next prefix) changes nothing
     stepwise = CandidateFilter(MOTION, k=6, beam=20)
     for t in range(7):

@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import select
+import signal
+import sys
+import threading
+
 import numpy as np
 import pytest
 
@@ -101,3 +107,48 @@ def test_shooting_same_legs_for_any_batch_and_threads(restore_threads, monkeypat
             la, lb = first.legs[k], shot.legs[k]
             assert np.array_equal(la.start, lb.start) and np.array_equal(la.length, lb.length)
             assert np.array_equal(first.sequences[k][la.seq], shot.sequences[k][lb.seq])
+
+
+def test_results_come_back_in_order_on_threads_kept_between_calls(restore_threads):
+    _threads.set_threads(2)
+    names = set()
+
+    def square(x: int) -> int:
+        names.add(threading.current_thread().name)
+        return x * x
+
+    for _ in range(3):
+        assert _threads.thread_map(square, list(range(50))) == [x * x for x in range(50)]
+    assert names and all(n.startswith(_threads._PREFIX) for n in names)
+    assert len(names) <= 2
+
+
+def test_a_nested_call_runs_in_its_thread_instead_of_waiting_on_the_pool(restore_threads):
+    _threads.set_threads(2)
+
+    def inner(x: int) -> list[int]:
+        return _threads.thread_map(lambda y: x + y, [0, 1, 2])
+
+    assert _threads.thread_map(inner, [10, 20, 30, 40]) == [[x, x + 1, x + 2] for x in (10, 20, 30, 40)]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork") or sys.platform == "darwin", reason="fork")
+def test_a_forked_child_starts_its_own_threads(restore_threads):
+    _threads.set_threads(2)
+    assert _threads.thread_map(abs, [-1, -2]) == [1, 2]  # the parent's pool exists
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: its parent's threads are gone, a new pool must serve it
+        try:
+            ok = _threads.thread_map(abs, [-3, -4, -5]) == [3, 4, 5]
+            os.write(w, b"1" if ok else b"0")
+        finally:
+            os._exit(0)
+    os.close(w)
+    # a child waiting on threads it does not have would never answer
+    ready, _, _ = select.select([r], [], [], 30.0)
+    got = os.read(r, 1) if ready else b""
+    if not ready:
+        os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    assert got == b"1", "the forked child's thread_map hung"

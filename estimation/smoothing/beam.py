@@ -1,16 +1,18 @@
-"""Compiled kernels of the online candidate filter: one step forward, one step back.
+"""Compiled kernels of the online candidate filter: one step forward, one pass back.
 
 The constant-velocity smoother of :func:`~estimation.smoothing.hmm.velocity_posterior` keeps a
 message over every pair of candidates ``(x_t-1, x_t)`` and sums over every triple, ``O(K^3)`` per
 step. Almost all of that mass sits on a few pairs, so these kernels keep the ``M`` most likely
 pairs of each step (a beam) and work in ``O(M K)`` per step: a forward step needs only the last
 step's pairs, so a user's estimate is updated in constant time per fingerprint, and the stored
-pairs give the smoothed marginals of any prefix by one backward pass. With ``M >= K^2`` nothing is
-pruned and the result is the dense smoother's.
+pairs give the smoothed marginals of any prefix by one backward pass (:func:`beam_smooth`, one call
+for all its steps). A step's kept pairs are stored in index order (by their candidate at the step
+before, then at the step), so the backward pass finds the pairs that continue a pair without
+sorting. With ``M >= K^2`` nothing is pruned and the result is the dense smoother's.
 
 Motion models reach the kernels as the arrays of :func:`motion_arrays` (a
 :class:`~estimation.smoothing.motion.MotionTable`'s tables); all kernels loop over sequences in
-compiled code, in float64, and are deterministic (ties are broken by a stable sort).
+compiled code, in float64, and are deterministic (ties are broken by index order).
 """
 
 from __future__ import annotations
@@ -24,7 +26,14 @@ from mmwsim._jit import njit
 
 from .motion import MixtureMotion, MotionTable
 
-__all__ = ["MotionArrays", "motion_arrays", "pair_backward", "pair_forward", "pair_start", "rw_step"]
+__all__ = [
+    "MotionArrays",
+    "beam_smooth",
+    "motion_arrays",
+    "pair_forward",
+    "pair_start",
+    "rw_step",
+]
 
 _NEG = -1e300  # log of a pair that was pruned (or an impossible one)
 # A term this far (log) below the largest of its sum changes it by less than float64 resolves
@@ -166,24 +175,32 @@ def rw_step(prev_xy, prev_f, xy, lp, inv_two_s2):
 
 @njit(cache=True, nogil=True)
 def _keep_best(dense, M, pi, ci, la):
-    """The ``M`` largest finite entries of ``dense (Kp, K)`` into ``pi, ci, la``, largest first
-    and ties in index order (padded with ``_NEG``); returns how many."""
+    """The ``M`` largest finite entries of ``dense (Kp, K)`` into ``pi, ci, la`` in index order
+    (row-major: ``pi`` ascending), ties at the cut taken in index order too; padded with
+    ``_NEG``. Returns how many."""
     K = dense.shape[1]
     flat = dense.ravel()
     N = len(flat)
-    if N > M:
-        # Only the entries from the M-th largest value up are sorted.
+    n_ok = 0
+    for q in range(N):
+        if flat[q] > _NEG:
+            n_ok += 1
+    cut, ties = _NEG, 0
+    if n_ok > M:
+        # A selection, not a sort: the kept pairs' order is the index order.
         cut = np.partition(flat, N - M)[N - M]
-        idx = np.flatnonzero(flat >= cut)
-    else:
-        idx = np.arange(N)
-    order = idx[np.argsort(-flat[idx], kind="mergesort")]
+        ties = M
+        for q in range(N):
+            if flat[q] > cut:
+                ties -= 1
     n = 0
-    for q in order[:M]:
-        if flat[q] <= _NEG:
-            break
-        pi[n], ci[n], la[n] = q // K, q % K, flat[q]
-        n += 1
+    for q in range(N):
+        v = flat[q]
+        if v > cut or (v == cut and ties > 0 and v > _NEG):
+            if v == cut:
+                ties -= 1
+            pi[n], ci[n], la[n] = q // K, q % K, v
+            n += 1
     for q in range(n, M):
         pi[q], ci[q], la[q] = 0, 0, _NEG
     return n
@@ -268,47 +285,45 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
     nci = np.empty((B, M), np.int64)
     nla = np.empty((B, M))
     marg = np.empty((B, K))
-    sc = np.empty((Mp, K))
-    cell = np.empty((Mp, K), np.int64)  # the acceleration's entry in the flattened table
-    prob = accel_prob.ravel()
     dense = np.empty((Kp, K))
-    # The beam is sorted by message, largest first: once a pair's message plus the likeliest
-    # acceleration lies _NEGLIGIBLE below the best term so far, its terms and those of every
-    # pair after it would be skipped below; they are not computed.
     a_max = accel_table.max()
     for b in range(B):
-        top = -np.inf
-        used = Mp
+        # Sums of exp(la_q + a_qj) are kept relative to the best pair's message (one exponential
+        # per pair, the accelerations' densities multiplied in). The best pair goes first: once a
+        # pair's message plus the likeliest acceleration lies _NEGLIGIBLE below the largest term
+        # so far, its terms change no sum and are not computed.
+        best_q, ref = 0, -np.inf
         for q in range(Mp):
-            if la[b, q] <= _NEG or la[b, q] + a_max - top < _NEGLIGIBLE:
-                used = q
-                break
+            if la[b, q] > ref:
+                best_q, ref = q, la[b, q]
+        dense[:, :] = 0.0
+        big, top = 0.0, -np.inf
+        for r in range(Mp + 1):
+            q = best_q if r == 0 else r - 1
+            if (r > 0 and q == best_q) or la[b, q] <= _NEG or la[b, q] + a_max - top < _NEGLIGIBLE:
+                continue
             a0, a1 = pi[b, q], ci[b, q]
             vx, vy = xp[b, a1, 0] - xpp[b, a0, 0], xp[b, a1, 1] - xpp[b, a0, 1]
             ux, uy, band = _frame(vx, vy, speed_edges)
+            scale = math.exp(la[b, q] - ref)
+            prob = accel_prob[band]
+            row = dense[a1]
             for j in range(K):
+                # the same arithmetic as _backward_step's, so both read the same bin
                 ax = xc[b, j, 0] - xp[b, a1, 0] - vx
                 ay = xc[b, j, 1] - xp[b, a1, 1] - vy
                 u, w = _accel_bin(ux, uy, ax, ay, n_acc, bin_, reach)
-                v = la[b, q] + accel_table[band, u, w]
-                sc[q, j] = v
-                cell[q, j] = (band * n_acc + u) * n_acc + w
-                top = max(top, v)
-        # sum_q exp(la_q + a_qj - top) as exp(la_q - top) exp(a_qj): one exponential per pair
-        dense[:, :] = 0.0
-        for q in range(used):
-            a1 = ci[b, q]
-            scale = math.exp(la[b, q] - top)
-            for j in range(K):
-                if sc[q, j] - top > _NEGLIGIBLE:
-                    dense[a1, j] += scale * prob[cell[q, j]]
+                term = scale * prob[u, w]
+                row[j] += term
+                big = max(big, term)
+            top = ref + math.log(big) if big > 0 else top
         for i in range(Kp):
             for j in range(K):
                 d = dense[i, j]
                 if d > 0:
                     vx, vy = xc[b, j, 0] - xp[b, i, 0], xc[b, j, 1] - xp[b, i, 1]
                     dense[i, j] = (
-                        math.log(d) + top + lp[b, j] + _log_place(xc[b, j, 0], xc[b, j, 1], vx, vy, place)
+                        math.log(d) + ref + lp[b, j] + _log_place(xc[b, j, 0], xc[b, j, 1], vx, vy, place)
                     )
                 else:
                     dense[i, j] = _NEG
@@ -318,101 +333,120 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
 
 
 @njit(cache=True, nogil=True)
-def group_pairs(pi, la, Kp):
-    """The kept pairs of a step grouped by their candidate at the step before, so that a backward
-    step visits from each pair of the step before only the pairs it continues into.
-
-    Parameters
-    ----------
-    pi, la : (B, M) a step's kept pairs (see :func:`pair_start`)
-    Kp : int, candidates of the step before
-
-    Returns
-    -------
-    order : (B, M) int64; the kept pairs by their candidate at the step before (stable)
-    start : (B, Kp + 1) int64; candidate ``i``'s pairs are ``order[start[i]:start[i + 1]]``
-    """
-    B, M = pi.shape
-    order = np.zeros((B, M), np.int64)
-    start = np.zeros((B, Kp + 1), np.int64)
-    for b in range(B):
-        n = 0
-        while n < M and la[b, n] > _NEG:
-            n += 1
-        order[b, :n] = np.argsort(pi[b, :n], kind="mergesort")
-        for q in range(n):
-            start[b, pi[b, q] + 1] += 1
-        for i in range(Kp):
-            start[b, i + 1] += start[b, i]
-    return order, start
+def _group(pi, n, Kp, order, start):
+    """The first ``n`` kept pairs of a step by their candidate at the step before: candidate
+    ``i``'s are ``order[start[i]:start[i + 1]]`` (index order within a group)."""
+    start[:] = 0
+    ascending = True
+    for q in range(n):
+        start[pi[q] + 1] += 1
+        if q and pi[q] < pi[q - 1]:
+            ascending = False
+    for i in range(Kp):
+        start[i + 1] += start[i]
+    # the beam kernels keep their pairs in index order, already grouped
+    order[:n] = np.arange(n) if ascending else np.argsort(pi[:n], kind="mergesort")
 
 
-# fmt: off
 @njit(cache=True, nogil=True)
-def pair_backward(
-    xpp, xp, xc, ppi, pci, pla, order, start, ci, beta, lp,
-    speed_edges, accel_table, bin_, reach, place, accel_prob,
-):
-    # fmt: on
-    """One backward step: the backward messages of the kept pairs of step t-1 from those of step t.
+def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, order, start, beta, lp, tables, floor, work, out):
+    """One sequence's backward messages ``out (Mp,)`` of the kept pairs of step t-1 from those
+    of step t (``beta``, over its kept pairs grouped by ``order, start``). A term whose rest lies
+    ``floor`` below its group's largest is left out. ``work``: scratch arrays."""
+    speed_edges, accel_table, bin_, reach, place, accel_prob = tables
+    rest, scale, gwx, gwy, head, count = work
+    Kp = xp.shape[0]
+    n_acc = accel_table.shape[1]
+    out[:] = _NEG
+    # Per pair of step t, what does not depend on the pair of t-1 it continues (its place,
+    # likelihood and backward message, relative to the largest of its candidate's group) and
+    # its displacement, packed group by group: the loop over the pairs of t-1 below reads each
+    # group's terms in a row instead of through the pair indices.
+    for i in range(Kp):
+        h = -np.inf
+        for r in range(start[i], start[i + 1]):
+            m = order[r]
+            if beta[m] <= _NEG:
+                rest[r] = -np.inf
+                continue
+            j = ci[m]
+            wx, wy = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
+            rest[r] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[j] + beta[m]
+            h = max(h, rest[r])
+        head[i] = h
+        c = start[i]
+        for r in range(start[i], start[i + 1]):
+            if rest[r] - h > floor:
+                j = ci[order[r]]
+                gwx[c], gwy[c] = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
+                scale[c] = math.exp(rest[r] - h)
+                c += 1
+        count[i] = c - start[i]
+    for q in range(len(ppi)):
+        if pla[q] <= _NEG:
+            continue
+        a0, a1 = ppi[q], pci[q]
+        if count[a1] == 0:
+            continue
+        vx, vy = xp[a1, 0] - xpp[a0, 0], xp[a1, 1] - xpp[a0, 1]
+        ux, uy, band = _frame(vx, vy, speed_edges)
+        prob = accel_prob[band]
+        acc = 0.0
+        for r in range(start[a1], start[a1] + count[a1]):
+            u, w = _accel_bin(ux, uy, gwx[r] - vx, gwy[r] - vy, n_acc, bin_, reach)
+            acc += prob[u, w] * scale[r]
+        if acc > 0.0:
+            out[q] = math.log(acc) + head[a1]
+
+
+@njit(cache=True, nogil=True)
+def beam_smooth(xy, lp, pi, ci, la, speed_edges, accel_table, bin_, reach, place, accel_prob):
+    """Smoothed log marginals of every step of a beam's stored forward messages: one backward
+    pass over the kept pairs.
 
     Parameters
     ----------
-    xpp, xp, xc : (B, K, 2) float64; candidates of steps t-2, t-1 and t
-    ppi, pci, pla : (B, Mp) kept pairs of step t-1 and their forward messages
-    order, start : the kept pairs of step t grouped by their candidate at t-1 (:func:`group_pairs`)
-    ci : (B, M) their candidates at step t
-    beta : (B, M) float64; their backward log messages (0 at the last step)
-    lp : (B, K) float64; log likelihoods of step t
+    xy : (B, T, K, 2) float64; the steps' candidates (T >= 2)
+    lp : (B, T, K) float64; their log likelihoods
+    pi, ci, la : (B, T - 1, M) the kept pairs of steps 1..T-1 (see :func:`pair_start`), index
+        order
     speed_edges, accel_table, bin_, reach, place, accel_prob : the motion's tables
 
     Returns
     -------
-    (B, Mp) float64 backward log messages of step t-1 (``_NEG`` for padding)
+    (B, T, K) float64 normalised log marginals given all T steps (``_NEG`` for none)
     """
-    B, M, Mp = ci.shape[0], ci.shape[1], ppi.shape[1]
-    Kp = xp.shape[1]
-    n_acc = accel_table.shape[1]
+    B, T, K = lp.shape
+    M = pi.shape[2]
+    tables = (speed_edges, accel_table, bin_, reach, place, accel_prob)
     # a term whose rest lies this far below its group's largest stays _NEGLIGIBLE below the sum
     # whatever the accelerations
     floor = _NEGLIGIBLE - (accel_table.max() - accel_table.min())
-    out = np.full((B, Mp), _NEG)
-    # per pair of step t, what does not depend on the pair of t-1 it continues: its place,
-    # likelihood and backward message, and the largest of them over its candidate's group
-    rest = np.empty(M)
-    scale = np.empty(M)
-    head = np.empty(Kp)
+    out = np.empty((B, T, K))
+    beta = np.empty(M)
+    prev = np.empty(M)
+    joint = np.empty(M)
+    order = np.empty(M, np.int64)
+    start = np.empty(K + 1, np.int64)
+    work = (np.empty(M), np.empty(M), np.empty(M), np.empty(M), np.empty(K), np.empty(K, np.int64))
     for b in range(B):
-        head[:] = -np.inf
-        for i in range(Kp):
-            for r in range(start[b, i], start[b, i + 1]):
-                m = order[b, r]
-                if beta[b, m] <= _NEG:
-                    rest[m] = -np.inf
-                    continue
-                j = ci[b, m]
-                wx, wy = xc[b, j, 0] - xp[b, i, 0], xc[b, j, 1] - xp[b, i, 1]
-                rest[m] = _log_place(xc[b, j, 0], xc[b, j, 1], wx, wy, place) + lp[b, j] + beta[b, m]
-                head[i] = max(head[i], rest[m])
-            for r in range(start[b, i], start[b, i + 1]):
-                m = order[b, r]
-                scale[m] = math.exp(rest[m] - head[i]) if rest[m] - head[i] > floor else 0.0
-        for q in range(Mp):
-            if pla[b, q] <= _NEG:
-                continue
-            a0, a1 = ppi[b, q], pci[b, q]
-            if head[a1] == -np.inf:
-                continue
-            vx, vy = xp[b, a1, 0] - xpp[b, a0, 0], xp[b, a1, 1] - xpp[b, a0, 1]
-            ux, uy, band = _frame(vx, vy, speed_edges)
-            acc = 0.0
-            for r in range(start[b, a1], start[b, a1 + 1]):
-                m = order[b, r]
-                if scale[m] > 0.0:
-                    j = ci[b, m]
-                    wx, wy = xc[b, j, 0] - xp[b, a1, 0], xc[b, j, 1] - xp[b, a1, 1]
-                    u, w = _accel_bin(ux, uy, wx - vx, wy - vy, n_acc, bin_, reach)
-                    acc += accel_prob[band, u, w] * scale[m]
-            if acc > 0.0:
-                out[b, q] = math.log(acc) + head[a1]
+        for m in range(M):
+            beta[m] = 0.0 if la[b, T - 2, m] > _NEG else _NEG
+        for t in range(T - 1, 0, -1):
+            s = t - 1  # the pairs (t-1, t)
+            for m in range(M):
+                joint[m] = la[b, s, m] + beta[m]
+            _marginal(joint, ci[b, s], K, out[b, t])
+            if t == 1:
+                _marginal(joint, pi[b, s], K, out[b, 0])
+                break
+            n = 0
+            while n < M and la[b, s, n] > _NEG:
+                n += 1
+            _group(pi[b, s], n, K, order, start)
+            _backward_step(
+                xy[b, t - 2], xy[b, t - 1], xy[b, t], pi[b, s - 1], ci[b, s - 1], la[b, s - 1],
+                ci[b, s], order, start, beta, lp[b, t], tables, floor, work, prev,
+            )  # fmt: skip
+            beta[:] = prev
     return out

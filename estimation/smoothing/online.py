@@ -29,10 +29,10 @@ import math
 import numpy as np
 import torch
 
-from mmwsim._threads import pieces, thread_map
+from mmwsim._threads import pieces, thread_map, threads
 
 from ..matching import GUIDE
-from .beam import group_pairs, motion_arrays, pair_backward, pair_forward, pair_start, rw_step
+from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_step
 from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _rw_transitions, _step_distances
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
@@ -64,15 +64,46 @@ def _log_softmax(x: np.ndarray, axis: int = -1) -> np.ndarray:
 def _threaded(kernel, n_batched: int, *args):
     """``kernel(*args)`` over slices of the batch (the first ``n_batched`` arguments' first axis)
     on the process's threads: the kernels release the GIL and treat every sequence alone, so the
-    result is the same for any number of threads."""
+    result is the same for any number of threads. Sequences differ in cost (how many pairs
+    matter), so with several threads the batch goes in slices of at most 32 sequences, taken
+    by whichever thread is free."""
     B = args[0].shape[0]
-    parts = pieces(B, 32)
+    parts = pieces(B, 32, 32) if threads() > 1 else [slice(0, B)]
     if len(parts) == 1:
         return kernel(*args)
     outs = thread_map(lambda s: kernel(*(a[s] for a in args[:n_batched]), *args[n_batched:]), parts)
     if isinstance(outs[0], tuple):
         return tuple(np.concatenate(o) for o in zip(*outs, strict=True))
     return np.concatenate(outs)
+
+
+class _Steps:
+    """Per-step arrays of a batch stacked along axis 1 (capacity doubled as steps come): any
+    prefix is a view, so a backward pass needs no copy of the steps before it."""
+
+    def __init__(self) -> None:
+        self._buf: np.ndarray | None = None
+        self.n = 0
+
+    def append(self, x: np.ndarray) -> None:
+        if self._buf is None:
+            self._buf = np.empty((x.shape[0], 8, *x.shape[1:]), x.dtype)
+        elif self.n == self._buf.shape[1]:
+            grown = np.empty((x.shape[0], 2 * self.n, *x.shape[1:]), x.dtype)
+            grown[:, : self.n] = self._buf
+            self._buf = grown
+        self._buf[:, self.n] = x
+        self.n += 1
+
+    def last(self) -> np.ndarray:
+        """The last step, ``(B, ...)`` contiguous."""
+        assert self._buf is not None and self.n
+        return np.ascontiguousarray(self._buf[:, self.n - 1])
+
+    def upto(self, T: int) -> np.ndarray:
+        """The first ``T`` steps, ``(B, T, ...)``."""
+        assert self._buf is not None and T <= self.n
+        return self._buf[:, :T]
 
 
 class _Beam:
@@ -82,10 +113,9 @@ class _Beam:
         self.m, self.beam = motion_arrays(motion), int(beam)
         self.xy: list[np.ndarray] = []  # (B, K, 2) per step
         self.lp: list[np.ndarray] = []  # (B, K) per step
-        self.pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
-        # step -> its pairs grouped by their candidate at the step before, made by the first
-        # backward pass through the step and kept for the next prefix's
-        self._groups: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # the kept pairs (pi, ci, la) of steps 1.., stacked for the backward passes
+        self._pairs = [_Steps() for _ in range(3)]
+        self._xy, self._lp = _Steps(), _Steps()  # the points and likelihoods, stacked
         self.marg: list[np.ndarray] = []  # (B, K) filtered log marginals
         self.evidence: list[np.ndarray] = []  # (B,) log evidence of the steps so far
 
@@ -101,12 +131,15 @@ class _Beam:
             )
         else:
             *pairs, marg = _threaded(
-                pair_forward, 7, self.xy[-2], self.xy[-1], xy, *self.pairs[-1], lp,
+                pair_forward, 7, self.xy[-2], self.xy[-1], xy, *(p.last() for p in self._pairs), lp,
                 self.beam, m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
-        self.pairs.append(None if pairs is None else tuple(pairs))
+        self._xy.append(xy)
+        self._lp.append(lp)
+        for stack, x in zip(self._pairs, pairs or (), strict=False):
+            stack.append(x)
         self.marg.append(marg)
         # log p(steps so far | motion) up to the beam's pruning (the pair messages are not
         # normalised; the first step's likelihoods are)
@@ -114,32 +147,24 @@ class _Beam:
         self.evidence.append(np.asarray(torch.logsumexp(torch.from_numpy(la), dim=1)))
         return marg
 
-    def _grouped_pairs(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        if t not in self._groups:
-            pi, _, la = self.pairs[t]
-            self._groups[t] = _threaded(group_pairs, 2, pi, la, self.xy[t - 1].shape[1])
-        return self._groups[t]
+    def points(self, T: int) -> np.ndarray:
+        """The first ``T`` steps' points ``(B, T, K, 2)`` (a view)."""
+        return self._xy.upto(T)
 
-    def smooth(self, T: int) -> list[np.ndarray]:
-        """Smoothed log marginals ``(B, K)`` of the first ``T`` steps given those ``T`` steps."""
+    def likelihoods(self, T: int) -> np.ndarray:
+        """The first ``T`` steps' log likelihoods ``(B, T, K)`` (a view)."""
+        return self._lp.upto(T)
+
+    def smooth(self, T: int) -> np.ndarray:
+        """Smoothed log marginals ``(B, T, K)`` of the first ``T`` steps given those ``T`` steps."""
         if T == 1:
-            return [self.marg[0]]
+            return self.marg[0][:, None]
         m = self.m
-        pi, ci, la = self.pairs[T - 1]
-        beta = np.where(la > -1e299, 0.0, -1e300)
-        out: list[np.ndarray] = [np.empty(0)] * T
-        for t in range(T - 1, 0, -1):
-            pi, ci, la = self.pairs[t]
-            joint = la + beta
-            out[t] = _grouped(joint, ci, self.xy[t].shape[1])
-            if t == 1:
-                out[0] = _grouped(joint, pi, self.xy[0].shape[1])
-                break
-            beta = _threaded(
-                pair_backward, 11, self.xy[t - 2], self.xy[t - 1], self.xy[t], *self.pairs[t - 1], *self._grouped_pairs(t), ci, beta, self.lp[t],
-                m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
-            )  # fmt: skip
-        return out
+        pi, ci, la = (p.upto(T - 1) for p in self._pairs)
+        return _threaded(
+            beam_smooth, 5, self.points(T), self.likelihoods(T), pi, ci, la,
+            m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+        )  # fmt: skip
 
 
 def _vague_shift(pos: np.ndarray, vague: np.ndarray, gate: float = VAGUE_GATE) -> np.ndarray:
@@ -185,17 +210,6 @@ def _vague_shift(pos: np.ndarray, vague: np.ndarray, gate: float = VAGUE_GATE) -
     sel = off & (has_b | has_a)
     shift[users[sel], t[sel]] = target[sel] - pos[users[sel], t[sel]]
     return shift
-
-
-def _grouped(val: np.ndarray, group: np.ndarray, K: int) -> np.ndarray:
-    """Normalised log-sum-exp of ``val (B, M)`` grouped by ``group (B, M)`` into ``(B, K)``."""
-    v = torch.from_numpy(val)
-    ok = v > -1e299
-    top = torch.where(ok, v, torch.tensor(-torch.inf, dtype=v.dtype)).amax(-1, keepdim=True)
-    w = torch.where(ok, (v - top).exp(), torch.zeros_like(v))
-    acc = torch.zeros(v.shape[0], K, dtype=v.dtype).scatter_add_(1, torch.from_numpy(group), w)
-    out = (acc / acc.sum(-1, keepdim=True)).log()
-    return np.asarray(out.clamp(min=-1e300))
 
 
 class _Hypothesis:
@@ -373,8 +387,8 @@ class CandidateFilter:
         T = self.steps if T is None else int(T)
         if not 1 <= T <= self.steps:
             raise ValueError(f"can smooth 1..{self.steps} steps, not {T}")
-        xy = torch.from_numpy(np.stack(self.cells.xy[:T], 1)).float()
-        lp = torch.from_numpy(np.stack(self.cells.lp[:T], 1)).float()
+        xy = torch.from_numpy(self.cells.points(T)).float()
+        lp = torch.from_numpy(self.cells.likelihoods(T)).float()
         w = torch.from_numpy(self.model_weights(T))[:, None, None]  # (B, 1, 1, n_models)
         p = torch.zeros(xy.shape[:3], dtype=torch.float64)
         fine = torch.zeros(xy.shape[0], T, 2, dtype=torch.float64)
@@ -406,14 +420,14 @@ class CandidateFilter:
     def _smooth_one(self, h: _Hypothesis, T: int, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """One motion model's smoothed cell marginals ``(B, T, k)`` and positions ``(B, T, 2)``
         metres, float64."""
-        p = torch.softmax(torch.from_numpy(np.stack(h.cells.smooth(T), 1)), -1)
+        p = torch.softmax(torch.from_numpy(h.cells.smooth(T)), -1)
         if h.fine is None:
             return p, (p[..., None] * xy.double()).sum(2)
         # The sub-cells are the conditional mean given the cells split at each step, which were
         # chosen before the later steps were seen; the smoothed mass of the other cells (an alias
         # the first fingerprint preferred, say) keeps its cell-level mean.
-        w = np.exp(np.stack(h.fine.smooth(T), 1))
-        sub = torch.from_numpy((w[..., None] * np.stack(h.fine.xy[:T], 1)).sum(2) * self.spacing)
+        w = np.exp(h.fine.smooth(T))
+        sub = torch.from_numpy((w[..., None] * h.fine.points(T)).sum(2) * self.spacing)
         inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
         mass = (p * inside).sum(-1, keepdim=True)
         rest = (p * (1 - inside))[..., None] * xy.double()

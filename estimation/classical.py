@@ -60,7 +60,8 @@ class KnnKalman:
     ):
         if task not in ("tracking", "forecasting"):
             raise EstimationError(f"unknown task {task!r}")
-        self.matcher = FingerprintMatcher(data.grid_pdp, data.grid_xy, sigma, data.threshold)
+        self.matcher = FingerprintMatcher.shared(data.grid_pdp, data.grid_xy, sigma, data.threshold)
+        self.matcher.tile_index()  # built now (or shared), so that prediction times are prediction
         self.task, self.horizon, self.q, self.r, self.gate = task, horizon, q, r, gate
 
     def smooth(self, z: np.ndarray) -> np.ndarray:
@@ -114,7 +115,8 @@ class MatchSmoother:
     name = "match-cv"
 
     def __init__(self, data: SequenceSet, sigma: float, search: int = 256, k: int = 48):
-        self.matcher = FingerprintMatcher(data.grid_pdp, data.grid_xy, sigma, data.threshold)
+        self.matcher = FingerprintMatcher.shared(data.grid_pdp, data.grid_xy, sigma, data.threshold)
+        self.matcher.tile_index()  # built now (or shared), so that prediction times are prediction
         self.n_search, self.k = int(search), int(k)
 
     def search(self, bits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

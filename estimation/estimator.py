@@ -278,7 +278,7 @@ class Estimator(nn.Module):
                     f"grid fingerprints are {tuple(pdp.shape[1:])}, the model expects "
                     f"{(self.n_beams, self.n_bins)}"
                 )
-            self.matcher = FingerprintMatcher(pdp, xy, sigma, threshold)
+            self.matcher = FingerprintMatcher.shared(pdp, xy, sigma, threshold)
             self.matcher.tile_index()  # build the tables now
         return self
 

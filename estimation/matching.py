@@ -9,6 +9,7 @@ fingerprint x scores ``sum_ij x_ij log p_gij + (1 - x_ij) log(1 - p_gij)``, i.e.
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 import torch
@@ -24,6 +25,9 @@ __all__ = ["FingerprintMatcher", "GUIDE"]
 # match-cv figures of the default data set did not move in the third decimal, and a vehicle whose
 # fingerprint was empty at the area's edge was tracked at 1 m instead of 197 m (docs/estimation.md).
 GUIDE = (50.0, 3.0, 0.5)
+
+# The matchers in use, by the arrays, noise and threshold they were made for (FingerprintMatcher.shared).
+_IN_USE: weakref.WeakValueDictionary[tuple, FingerprintMatcher] = weakref.WeakValueDictionary()
 
 
 class FingerprintMatcher:
@@ -51,7 +55,8 @@ class FingerprintMatcher:
     :meth:`candidates`, :meth:`track_candidates` and :meth:`match` search them tile by tile
     (:class:`~estimation.tile_search.TileIndex`, 515 MB for the default data set's 79,097 points
     and 1,472 entries); :meth:`scores`, every point's log-likelihood, reads them as one dense
-    ``(C, G)`` float32 table (466 MB), built only if it is called.
+    ``(C, G)`` float32 table (466 MB), built only if it is called. Methods that read the same
+    grid at the same noise share one matcher through :meth:`shared`.
     """
 
     def __init__(
@@ -64,6 +69,7 @@ class FingerprintMatcher:
         chunk: int = 16384,
     ):
         self.grid_pdp, self.grid_xy = grid_pdp, np.asarray(grid_xy, np.float64)
+        self._xy_given = grid_xy  # what shared() compares
         self.sigma, self.threshold, self.eps, self.chunk = float(sigma), float(threshold), eps, chunk
         flat = grid_pdp.reshape(len(grid_pdp), -1)
         # Columns where no grid point has any signal can never read 1 and score all points alike.
@@ -71,6 +77,23 @@ class FingerprintMatcher:
         self._w: torch.Tensor | None = None
         self._c: torch.Tensor | None = None
         self._tiles: TileIndex | None = None
+
+    @classmethod
+    def shared(
+        cls, grid_pdp: torch.Tensor, grid_xy: np.ndarray, sigma: float, threshold: float
+    ) -> FingerprintMatcher:
+        """A matcher of these very arrays (the same objects) at this noise and threshold: the one
+        another method is using, if any, else a new one. Its tables are built once for all its
+        users (515 MB on the default data set), e.g. for every grid-reading method that
+        ``mmwsim evaluate`` compares on one data set. Matchers change nothing once made, so sharing
+        one changes no result."""
+        key = (id(grid_pdp), id(grid_xy), float(sigma), float(threshold))
+        m = _IN_USE.get(key)
+        # a matcher in use holds its arrays, so their ids cannot have been reused; checked anyway
+        if m is None or m.grid_pdp is not grid_pdp or m._xy_given is not grid_xy:
+            m = cls(grid_pdp, grid_xy, sigma, threshold)
+            _IN_USE[key] = m
+        return m
 
     def _weights(self, rows: slice | np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         pdp = self.grid_pdp[rows].reshape(-1, self.grid_pdp.shape[1] * self.grid_pdp.shape[2])

@@ -395,6 +395,30 @@ def test_evaluation_attaches_the_likelihood_at_the_noise_it_evaluates():
     assert np.allclose(method.predict_lengths(bits, [5])[5][0], at12, atol=1e-3)
 
 
+def test_methods_on_one_grid_at_one_noise_share_one_matcher_and_its_tables():
+    import gc
+
+    from estimation import KnnKalman
+
+    va = toy_sequence_set(32, 5, seed=2)
+    cfg = TrainConfig(model="tn-match", sigma=6.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
+    cv, knn = MatchSmoother(va, 6.0, search=32, k=8), KnnKalman(va, 6.0)
+    assert cv.matcher is est.matcher is knn.matcher
+    assert est.matcher._tiles is not None  # built once, by the first
+    # another noise, or other arrays (a copy of the same grid), get their own
+    assert MatchSmoother(va, 9.0).matcher is not cv.matcher
+    copied = dataclasses.replace(va, grid_pdp=va.grid_pdp.clone())
+    assert MatchSmoother(copied, 6.0).matcher is not cv.matcher
+    # kept only while in use
+    first = id(cv.matcher)
+    del est, cv, knn
+    gc.collect()
+    from estimation.matching import _IN_USE
+
+    assert all(id(m) != first for m in _IN_USE.values())
+
+
 def test_tn_match_needs_the_grid():
     d = toy_sequence_set(8, 4, nx=16, ny=16, n_beams=4, n_bins=8)
     est = Estimator(TrainConfig(model="tn-match", options={"search": 16, "k": 4}), 4, 8, d.normaliser())

@@ -299,4 +299,4 @@ def test_the_filter_puts_a_vague_first_step_where_the_steps_after_it_lead():
     moved = fine[:, 0] - fine1[:, 0]
     assert moved.norm(dim=-1).min() > 150.0
     torch.testing.assert_close(kxy[:, 0], before[:, 0] + moved[:, None], atol=1e-3, rtol=0)
-    torch.testing.assert_close(kxy[:, 1:], torch.from_numpy(np.stack(f.cells.xy[1:T], 1)).float())
+    torch.testing.assert_close(kxy[:, 1:], torch.from_numpy(f.cells.points(T)[:, 1:]).float())

@@ -129,7 +129,14 @@ def test_a_nested_call_runs_in_its_thread_instead_of_waiting_on_the_pool(restore
     def inner(x: int) -> list[int]:
         return _threads.thread_map(lambda y: x + y, [0, 1, 2])
 
-    assert _threads.thread_map(inner, [10, 20, 30, 40]) == [[x, x + 1, x + 2] for x in (10, 20, 30, 40)]
+    got = []
+    # on a daemon thread: calls waiting on each other would never return
+    outer = threading.Thread(
+        target=lambda: got.append(_threads.thread_map(inner, [10, 20, 30, 40])), daemon=True
+    )
+    outer.start()
+    outer.join(30.0)
+    assert got == [[[x, x + 1, x + 2] for x in (10, 20, 30, 40)]], "nested thread_map calls deadlocked"
 
 
 @pytest.mark.skipif(not hasattr(os, "fork") or sys.platform == "darwin", reason="fork")

@@ -333,26 +333,23 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
 
 
 @njit(cache=True, nogil=True)
-def _group(pi, n, Kp, order, start):
-    """The first ``n`` kept pairs of a step by their candidate at the step before: candidate
-    ``i``'s are ``order[start[i]:start[i + 1]]`` (index order within a group)."""
+def _group(pi, n, Kp, start):
+    """The first ``n`` kept pairs of a step by their candidate at the step before: the beam keeps
+    them in index order, so candidate ``i``'s are the pairs ``start[i]:start[i + 1]``."""
     start[:] = 0
-    ascending = True
     for q in range(n):
-        start[pi[q] + 1] += 1
         if q and pi[q] < pi[q - 1]:
-            ascending = False
+            raise ValueError("a beam's kept pairs must be in index order")
+        start[pi[q] + 1] += 1
     for i in range(Kp):
         start[i + 1] += start[i]
-    # the beam kernels keep their pairs in index order, already grouped
-    order[:n] = np.arange(n) if ascending else np.argsort(pi[:n], kind="mergesort")
 
 
 @njit(cache=True, nogil=True)
-def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, order, start, beta, lp, tables, floor, work, out):
+def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, start, beta, lp, tables, floor, work, out):
     """One sequence's backward messages ``out (Mp,)`` of the kept pairs of step t-1 from those
-    of step t (``beta``, over its kept pairs grouped by ``order, start``). A term whose rest lies
-    ``floor`` below its group's largest is left out. ``work``: scratch arrays."""
+    of step t (``beta``, over its kept pairs grouped by ``start``, see :func:`_group`). A term
+    whose rest lies ``floor`` below its group's largest is left out. ``work``: scratch arrays."""
     speed_edges, accel_table, bin_, reach, place, accel_prob = tables
     rest, scale, gwx, gwy, head, count = work
     Kp = xp.shape[0]
@@ -364,22 +361,21 @@ def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, order, start, beta, lp, table
     # group's terms in a row instead of through the pair indices.
     for i in range(Kp):
         h = -np.inf
-        for r in range(start[i], start[i + 1]):
-            m = order[r]
+        for m in range(start[i], start[i + 1]):
             if beta[m] <= _NEG:
-                rest[r] = -np.inf
+                rest[m] = -np.inf
                 continue
             j = ci[m]
             wx, wy = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
-            rest[r] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[j] + beta[m]
-            h = max(h, rest[r])
+            rest[m] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[j] + beta[m]
+            h = max(h, rest[m])
         head[i] = h
         c = start[i]
-        for r in range(start[i], start[i + 1]):
-            if rest[r] - h > floor:
-                j = ci[order[r]]
+        for m in range(start[i], start[i + 1]):
+            if rest[m] - h > floor:
+                j = ci[m]
                 gwx[c], gwy[c] = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
-                scale[c] = math.exp(rest[r] - h)
+                scale[c] = math.exp(rest[m] - h)
                 c += 1
         count[i] = c - start[i]
     for q in range(len(ppi)):
@@ -426,7 +422,6 @@ def beam_smooth(xy, lp, pi, ci, la, speed_edges, accel_table, bin_, reach, place
     beta = np.empty(M)
     prev = np.empty(M)
     joint = np.empty(M)
-    order = np.empty(M, np.int64)
     start = np.empty(K + 1, np.int64)
     work = (np.empty(M), np.empty(M), np.empty(M), np.empty(M), np.empty(K), np.empty(K, np.int64))
     for b in range(B):
@@ -443,10 +438,10 @@ def beam_smooth(xy, lp, pi, ci, la, speed_edges, accel_table, bin_, reach, place
             n = 0
             while n < M and la[b, s, n] > _NEG:
                 n += 1
-            _group(pi[b, s], n, K, order, start)
+            _group(pi[b, s], n, K, start)
             _backward_step(
                 xy[b, t - 2], xy[b, t - 1], xy[b, t], pi[b, s - 1], ci[b, s - 1], la[b, s - 1],
-                ci[b, s], order, start, beta, lp[b, t], tables, floor, work, prev,
+                ci[b, s], start, beta, lp[b, t], tables, floor, work, prev,
             )  # fmt: skip
             beta[:] = prev
     return out

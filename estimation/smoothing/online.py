@@ -95,10 +95,10 @@ class _Steps:
         self._buf[:, self.n] = x
         self.n += 1
 
-    def last(self) -> np.ndarray:
-        """The last step, ``(B, ...)`` contiguous."""
-        assert self._buf is not None and self.n
-        return np.ascontiguousarray(self._buf[:, self.n - 1])
+    def step(self, t: int) -> np.ndarray:
+        """Step ``t`` (negative: from the end), ``(B, ...)`` contiguous."""
+        assert self._buf is not None and -self.n <= t < self.n
+        return np.ascontiguousarray(self._buf[:, t % self.n])
 
     def upto(self, T: int) -> np.ndarray:
         """The first ``T`` steps, ``(B, T, ...)``."""
@@ -111,33 +111,39 @@ class _Beam:
 
     def __init__(self, motion: MotionTable | MixtureMotion, beam: int):
         self.m, self.beam = motion_arrays(motion), int(beam)
-        self.xy: list[np.ndarray] = []  # (B, K, 2) per step
-        self.lp: list[np.ndarray] = []  # (B, K) per step
-        # the kept pairs (pi, ci, la) of steps 1.., stacked for the backward passes
+        # every step's points (B, K, 2) and log likelihoods (B, K), and the kept pairs (pi, ci,
+        # la) of steps 1..
+        self.xy, self.lp = _Steps(), _Steps()
         self._pairs = [_Steps() for _ in range(3)]
-        self._xy, self._lp = _Steps(), _Steps()  # the points and likelihoods, stacked
         self.marg: list[np.ndarray] = []  # (B, K) filtered log marginals
         self.evidence: list[np.ndarray] = []  # (B,) log evidence of the steps so far
 
     def update(self, xy: np.ndarray, lp: np.ndarray) -> np.ndarray:
         """Add a step's points ``xy (B, K, 2)`` and log likelihoods ``lp (B, K)``; returns the
         step's filtered log marginal ``(B, K)``."""
-        m, t = self.m, len(self.xy)
+        m, t = self.m, self.xy.n
         if t == 0:
             pairs, marg = None, _log_softmax(lp)
         elif t == 1:
             *pairs, marg = _threaded(
-                pair_start, 4, self.xy[0], xy, self.lp[0], lp, self.beam, m.step_table, m.bin, m.place
+                pair_start,
+                4,
+                self.xy.step(0),
+                xy,
+                self.lp.step(0),
+                lp,
+                self.beam,
+                m.step_table,
+                m.bin,
+                m.place,
             )
         else:
             *pairs, marg = _threaded(
-                pair_forward, 7, self.xy[-2], self.xy[-1], xy, *(p.last() for p in self._pairs), lp,
+                pair_forward, 7, self.xy.step(-2), self.xy.step(-1), xy, *(p.step(-1) for p in self._pairs), lp,
                 self.beam, m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
-        self._xy.append(xy)
-        self._lp.append(lp)
         for stack, x in zip(self._pairs, pairs or (), strict=False):
             stack.append(x)
         self.marg.append(marg)
@@ -149,11 +155,11 @@ class _Beam:
 
     def points(self, T: int) -> np.ndarray:
         """The first ``T`` steps' points ``(B, T, K, 2)`` (a view)."""
-        return self._xy.upto(T)
+        return self.xy.upto(T)
 
     def likelihoods(self, T: int) -> np.ndarray:
         """The first ``T`` steps' log likelihoods ``(B, T, K)`` (a view)."""
-        return self._lp.upto(T)
+        return self.lp.upto(T)
 
     def smooth(self, T: int) -> np.ndarray:
         """Smoothed log marginals ``(B, T, K)`` of the first ``T`` steps given those ``T`` steps."""
@@ -323,12 +329,12 @@ class CandidateFilter:
         xy = np.asarray(xy, dtype=np.float64)
         score = np.asarray(score, dtype=np.float64)
         lp = _log_softmax(score)
-        if self.steps and xy.shape[0] != self.cells.xy[0].shape[0]:
-            raise ValueError(f"a step of {xy.shape[0]} users after steps of {self.cells.xy[0].shape[0]}")
+        if self.steps and xy.shape[0] != (n := len(self.cells.xy.upto(1))):
+            raise ValueError(f"a step of {xy.shape[0]} users after steps of {n}")
         if self._rw is None:
             rw = np.repeat(lp[..., None], len(self._inv_two_s2), -1)
         else:
-            rw = _threaded(rw_step, 4, self.cells.xy[-1], self._rw, xy, lp, self._inv_two_s2)
+            rw = _threaded(rw_step, 4, self.cells.xy.step(-1), self._rw, xy, lp, self._inv_two_s2)
         # A stable sort keeps ties in the matcher's order, so the result does not depend on the batch.
         keep = np.argsort(-rw.max(-1), axis=1, kind="stable")[:, : self.k]
         kxy = np.take_along_axis(xy, keep[..., None], 1)
@@ -409,7 +415,7 @@ class CandidateFilter:
         once per step and shared by the prefixes' smoothing."""
         done = 0 if self._trans is None else self._trans[0].shape[1]
         if self._trans is None or done < self.steps - 1:
-            d2 = _step_distances(torch.from_numpy(np.stack(self.cells.xy[done:], 1)).float())
+            d2 = _step_distances(torch.from_numpy(self.cells.points(self.steps)[:, done:]).float())
             new = [_rw_transitions(d2, s) for s in STEP_SIGMAS]
             self._trans = (
                 new if self._trans is None else [torch.cat(p, 1) for p in zip(self._trans, new, strict=True)]

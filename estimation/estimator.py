@@ -329,7 +329,13 @@ class Estimator(nn.Module):
         net = self.net
         digest = hashlib.sha1(str(float(net.grid_step)).encode())
         for table in (net.motion, net.motion_fine):
-            for t in (table.fitted, table.speed_edges, table.log_step_table, table.log_accel_table):
+            for t in (
+                table.fitted,
+                table.speed_edges,
+                table.headings,
+                table.log_step_table,
+                table.log_accel_table,
+            ):
                 digest.update(t.numpy().tobytes())
         for t in extra:
             digest.update(np.ascontiguousarray(t).tobytes())

@@ -11,7 +11,7 @@ import torch
 from estimation import EstimationError, Estimator, TrainConfig, noisy_bits
 from estimation.smoothing.beam import motion_arrays
 from estimation.smoothing.hmm import velocity_posterior
-from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice
+from estimation.smoothing.motion import HEADINGS, MixtureMotion, MotionTable, snap_to_lattice
 from estimation.smoothing.online import CandidateFilter
 from estimation.synthetic import toy_sequence_set
 from mmwsim._threads import set_threads
@@ -40,9 +40,13 @@ MOTION = MotionTable().fit(_tracks())
 PLACED = (
     MotionTable().fit(_tracks()).fit_place(_tracks(), (-60.0, -60.0), 2.0, (60, 60), speed=3.0, floor=0.3)
 )
+# The same tracks in the lattice frame (heading bins within the octant), as tn-match's tables are.
+LATTICE_FRAME = MotionTable(headings=HEADINGS).fit(_tracks())
 
 
-@pytest.mark.parametrize("motion", [MOTION, PLACED], ids=["motion", "with-place"])
+@pytest.mark.parametrize(
+    "motion", [MOTION, PLACED, LATTICE_FRAME], ids=["motion", "with-place", "lattice-frame"]
+)
 def test_unpruned_beam_is_the_dense_constant_velocity_smoother(motion):
     xy, score = _candidates()
     # 10 x 10 pairs: nothing pruned; the toy scores look vague, so the vague-step rule is off
@@ -58,7 +62,9 @@ def test_unpruned_beam_is_the_dense_constant_velocity_smoother(motion):
 
 
 @pytest.mark.parametrize("beam", [100, 12])
-@pytest.mark.parametrize("motion", [MOTION, PLACED], ids=["motion", "with-place"])
+@pytest.mark.parametrize(
+    "motion", [MOTION, PLACED, LATTICE_FRAME], ids=["motion", "with-place", "lattice-frame"]
+)
 def test_forward_filter_equals_the_smoothers_last_step_marginal(beam, motion):
     xy, score = _candidates(T=7)
     f = CandidateFilter(motion, k=10, beam=beam)

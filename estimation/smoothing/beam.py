@@ -50,7 +50,9 @@ class MotionArrays(NamedTuple):
     bin: float
     reach: float
     place: tuple  # (place_speed, log_place (H, W) float32, origin (2,), res); see MotionTable
-    accel_prob: np.ndarray  # exp(accel_table): the kernels' sums multiply instead of exponentiate
+    accel_prob: np.ndarray  # exp(accel_table), float32 to halve the cache it takes: the kernels multiply
+    headings: int  # 0: the motion's frame; n: the lattice frame with n heading bins per quadrant
+    heading_slopes: np.ndarray  # (max(headings - 1, 0),) inner heading bin edges, slopes v_y / v_x
 
 
 def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
@@ -72,7 +74,9 @@ def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
         float(motion.bin),
         float(motion.reach),
         place,
-        np.exp(accel),
+        np.exp(accel).astype(np.float32),
+        int(motion.headings),
+        motion.heading_slopes,
     )
 
 
@@ -97,23 +101,40 @@ def _log_first(vx, vy, step_table, bin_):
 
 
 @njit(cache=True, inline="always")
-def _frame(vx, vy, speed_edges):
-    """Unit vector of the displacement ``v`` (x where ``v = 0``) and its speed band."""
+def _frame(vx, vy, speed_edges, headings, slopes):
+    """MotionTable._classify after the displacement ``v``: the map ``(f00, f01, f10, f11)`` of an
+    acceleration to the table's frame and the class of ``v`` (speed band, and heading bin)."""
     n = math.sqrt(vx * vx + vy * vy)
-    ux, uy = (vx / n, vy / n) if n > 0 else (1.0, 0.0)
     band = 0
     for e in speed_edges:
         if e < n:
             band += 1
-    return ux, uy, band
+    if headings == 0:
+        ux, uy = (vx / n, vy / n) if n > 0 else (1.0, 0.0)
+        return ux, uy, -uy, ux, band
+    # the quarter turn (cos, sin) that brings v into the quadrant x > 0, y >= 0 (none for v = 0)
+    if vx > 0 and vy >= 0:
+        c, s = 1.0, 0.0
+    elif vx <= 0 and vy > 0:
+        c, s = 0.0, -1.0
+    elif vx < 0 and vy <= 0:
+        c, s = -1.0, 0.0
+    elif vx == 0 and vy == 0:
+        c, s = 1.0, 0.0
+    else:
+        c, s = 0.0, 1.0
+    cx, cy = c * vx - s * vy, s * vx + c * vy
+    # the number of bin edges below the slope, as MotionTable._classify counts them
+    k = np.searchsorted(slopes, cy / cx if cx > 0 else 0.0)
+    return c, -s, s, c, band * headings + k
 
 
 @njit(cache=True, inline="always")
-def _accel_bin(ux, uy, ax, ay, n, bin_, reach):
-    # MotionTable.log_accel: the acceleration in the frame of the motion, in a speed band's
+def _accel_bin(f00, f01, f10, f11, ax, ay, n, bin_, reach):
+    # MotionTable.log_accel: the acceleration in the table's frame (see _frame), in its class's
     # n x n table.
-    i = min(max(int((ax * ux + ay * uy + reach) / bin_), 0), n - 1)
-    j = min(max(int((ay * ux - ax * uy + reach) / bin_), 0), n - 1)
+    i = min(max(int((f00 * ax + f01 * ay + reach) / bin_), 0), n - 1)
+    j = min(max(int((f10 * ax + f11 * ay + reach) / bin_), 0), n - 1)
     return i, j
 
 
@@ -263,7 +284,9 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
 
 
 @njit(cache=True, nogil=True)
-def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_, reach, place, accel_prob):
+def pair_forward(
+    xpp, xp, xc, pi, ci, la, lp, M, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
+):
     """One forward step of the beam: pairs ``(x_t-2, x_t-1)`` to pairs ``(x_t-1, x_t)``.
 
     Parameters
@@ -272,8 +295,8 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
     pi, ci, la : (B, M') the kept pairs of step t-1 (see :func:`pair_start`)
     lp : (B, K) float64; log likelihoods of step t
     M : int, beam width
-    speed_edges, accel_table, bin_, reach, place, accel_prob : the motion's acceleration and
-        place tables (:class:`MotionArrays`)
+    speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
+        acceleration and place tables (:class:`MotionArrays`)
 
     Returns
     -------
@@ -304,15 +327,15 @@ def pair_forward(xpp, xp, xc, pi, ci, la, lp, M, speed_edges, accel_table, bin_,
                 continue
             a0, a1 = pi[b, q], ci[b, q]
             vx, vy = xp[b, a1, 0] - xpp[b, a0, 0], xp[b, a1, 1] - xpp[b, a0, 1]
-            ux, uy, band = _frame(vx, vy, speed_edges)
+            f00, f01, f10, f11, cls = _frame(vx, vy, speed_edges, headings, slopes)
             scale = math.exp(la[b, q] - ref)
-            prob = accel_prob[band]
+            prob = accel_prob[cls]
             row = dense[a1]
             for j in range(K):
                 # the same arithmetic as _backward_step's, so both read the same bin
                 ax = xc[b, j, 0] - xp[b, a1, 0] - vx
                 ay = xc[b, j, 1] - xp[b, a1, 1] - vy
-                u, w = _accel_bin(ux, uy, ax, ay, n_acc, bin_, reach)
+                u, w = _accel_bin(f00, f01, f10, f11, ax, ay, n_acc, bin_, reach)
                 term = scale * prob[u, w]
                 row[j] += term
                 big = max(big, term)
@@ -350,7 +373,7 @@ def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, start, beta, lp, tables, floo
     """One sequence's backward messages ``out (Mp,)`` of the kept pairs of step t-1 from those
     of step t (``beta``, over its kept pairs grouped by ``start``, see :func:`_group`). A term
     whose rest lies ``floor`` below its group's largest is left out. ``work``: scratch arrays."""
-    speed_edges, accel_table, bin_, reach, place, accel_prob = tables
+    speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob = tables
     rest, scale, gwx, gwy, head, count = work
     Kp = xp.shape[0]
     n_acc = accel_table.shape[1]
@@ -385,18 +408,20 @@ def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, start, beta, lp, tables, floo
         if count[a1] == 0:
             continue
         vx, vy = xp[a1, 0] - xpp[a0, 0], xp[a1, 1] - xpp[a0, 1]
-        ux, uy, band = _frame(vx, vy, speed_edges)
-        prob = accel_prob[band]
+        f00, f01, f10, f11, cls = _frame(vx, vy, speed_edges, headings, slopes)
+        prob = accel_prob[cls]
         acc = 0.0
         for r in range(start[a1], start[a1] + count[a1]):
-            u, w = _accel_bin(ux, uy, gwx[r] - vx, gwy[r] - vy, n_acc, bin_, reach)
+            u, w = _accel_bin(f00, f01, f10, f11, gwx[r] - vx, gwy[r] - vy, n_acc, bin_, reach)
             acc += prob[u, w] * scale[r]
         if acc > 0.0:
             out[q] = math.log(acc) + head[a1]
 
 
 @njit(cache=True, nogil=True)
-def beam_smooth(xy, lp, pi, ci, la, speed_edges, accel_table, bin_, reach, place, accel_prob):
+def beam_smooth(
+    xy, lp, pi, ci, la, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
+):
     """Smoothed log marginals of every step of a beam's stored forward messages: one backward
     pass over the kept pairs.
 
@@ -406,7 +431,8 @@ def beam_smooth(xy, lp, pi, ci, la, speed_edges, accel_table, bin_, reach, place
     lp : (B, T, K) float64; their log likelihoods
     pi, ci, la : (B, T - 1, M) the kept pairs of steps 1..T-1 (see :func:`pair_start`), index
         order
-    speed_edges, accel_table, bin_, reach, place, accel_prob : the motion's tables
+    speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
+        tables (:class:`MotionArrays`)
 
     Returns
     -------
@@ -414,7 +440,7 @@ def beam_smooth(xy, lp, pi, ci, la, speed_edges, accel_table, bin_, reach, place
     """
     B, T, K = lp.shape
     M = pi.shape[2]
-    tables = (speed_edges, accel_table, bin_, reach, place, accel_prob)
+    tables = (speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob)
     # a term whose rest lies this far below its group's largest stays _NEGLIGIBLE below the sum
     # whatever the accelerations
     floor = _NEGLIGIBLE - (accel_table.max() - accel_table.min())

@@ -9,12 +9,14 @@ step squared). Two models give those densities:
 * :class:`MotionTable`, measured: histograms of the training trajectories' displacements (snapped to
   the grid, as the candidates are) and of their accelerations in the frame of the motion, one per
   speed band. Speed tells a pedestrian from a vehicle, and the frame tells a speed change (along
-  the motion) from a turn (across it), which a single isotropic mixture mixes up. ``tn-match``
-  fits one on its training split; it is saved with the network's weights. Its optional place
-  table (:meth:`MotionTable.fit_place`) adds where fast users were, a density ratio against
-  the flat one over the visited area, so vehicles stay in their lanes. Its
-  :meth:`MotionTable.broadened` copy is the alternative the online filter weighs it against, for
-  users who do not move like the training users.
+  the motion) from a turn (across it), which a single isotropic mixture mixes up. On the sub-cell
+  lattice the table is kept in the lattice's own frame instead, one per speed band and heading
+  (``MotionTable(headings=...)``), where the pattern in which a steady user crosses lattice points
+  is not blurred by rotation. ``tn-match`` fits one on its training split; it is saved with the
+  network's weights. Its optional place table (:meth:`MotionTable.fit_place`) adds where fast
+  users were, a density ratio against the flat one over the visited area, so vehicles stay in
+  their lanes. Its :meth:`MotionTable.broadened` copy is the alternative the online filter weighs
+  it against, for users who do not move like the training users.
 
 Both take ``v`` and ``a`` as ``(..., 2)`` tensors in metres per step that broadcast against each
 other and return log densities per square metre of the same broadcast shape without the last axis.
@@ -33,7 +35,9 @@ __all__ = [
     "MixtureMotion",
     "MotionTable",
     "ACCELERATION",
+    "BLEND",
     "FIRST_STEP_SIGMA",
+    "HEADINGS",
     "PLACE_FLOOR",
     "PLACE_SPEED",
     "POOLED_SPEED",
@@ -47,6 +51,13 @@ __all__ = [
 ACCELERATION = ((0.9, 0.7), (0.1, 5.0))
 FIRST_STEP_SIGMA = 15.0  # metres; prior scale of the first displacement (up to vehicle speeds)
 SUBCELLS = 3  # lattice points per grid spacing and axis of the sub-cell smoother
+# Heading bins per quadrant of the lattice frame of tn-match's tables (MotionTable(headings=...)).
+# A steady user snapped to the lattice accelerates by whole lattice steps in a pattern set by its
+# heading against the lattice axes. 24 bins (3.75 degrees) tracked best of 12, 24 and 36 on the
+# default data set (docs/estimation.md).
+HEADINGS = 24
+# Weight of a speed band's blurred density in each class of a lattice-frame table (MotionTable.fit).
+BLEND = 0.2
 # Users faster than this (metres per step) get a place table: vehicles keep to lanes. Slower ones
 # go anywhere, and a measured table of where they were made pedestrians' and hybrids' error worse
 # (sampling noise and turns in, on the default data set), so they have none.
@@ -68,6 +79,13 @@ def snap_to_lattice(u: np.ndarray, n_sub: int = SUBCELLS) -> np.ndarray:
     """
     u = np.asarray(u, dtype=np.float64)
     return np.round(u * n_sub) / n_sub if n_sub % 2 else (np.floor(u * n_sub) + 0.5) / n_sub
+
+
+def heading_slopes(headings: int) -> np.ndarray:
+    """Slopes ``tan(k pi / (2 headings))``, ``k = 1..headings-1``: the inner edges of ``headings``
+    equal heading bins in the first quadrant (:class:`MotionTable`'s lattice frame)."""
+    h = max(int(headings), 1)
+    return np.tan(np.arange(1, h) * np.pi / (2 * h))
 
 
 def _check_place(shape: tuple[int, int], res: float, floor: float, speed: float, visited: int = 1) -> None:
@@ -127,6 +145,14 @@ class MotionTable(nn.Module):
         ones count as the edge bin.
     max_step : float
         Displacements are tabulated up to this length, metres per step.
+    headings : int
+        0: accelerations in the frame of the motion (along and across it), one histogram per speed
+        band. ``n > 0``: in the lattice's own frame, the displacement turned by quarter turns into
+        the first quadrant (``v_x > 0, v_y >= 0``), and one histogram per speed band and each of
+        ``n`` heading bins within the quadrant. Quarter turns keep lattice points on lattice
+        points, so a table on a lattice (:meth:`lattice`) sees the exact quantisation pattern of
+        every heading instead of its blur by rotation; unlike mirror images they keep left and
+        right turns apart.
     """
 
     def __init__(
@@ -135,19 +161,24 @@ class MotionTable(nn.Module):
         bin: float = 0.5,
         reach: float = 16.0,
         max_step: float = 40.0,
+        headings: int = 0,
     ):
         super().__init__()
+        if headings < 0:
+            raise ValueError(f"headings must be >= 0, got {headings}")
         self.bin, self.reach = float(bin), float(reach)
         n_acc, n_step = round(2 * reach / bin), round(max_step / bin)
         self.register_buffer("speed_edges", torch.tensor(speed_edges, dtype=torch.float32))
+        self.register_buffer("headings", torch.tensor(int(headings), dtype=torch.int64))
+        n_class = (len(speed_edges) + 1) * max(int(headings), 1)
         flat_acc = -math.log((2 * reach) ** 2)
-        self.register_buffer("log_accel_table", torch.full((len(speed_edges) + 1, n_acc, n_acc), flat_acc))
+        self.register_buffer("log_accel_table", torch.full((n_class, n_acc, n_acc), flat_acc))
         r = (torch.arange(n_step) + 0.5) * bin
         self.register_buffer("log_step_table", -torch.log(2 * math.pi * r * max_step))
         self.register_buffer("fitted", torch.tensor(False))
-        # Samples per speed band in the fit (speed_pooled weighs the bands by them); zeros: unknown,
-        # as in a model saved before they were kept.
-        self.register_buffer("band_count", torch.zeros(len(speed_edges) + 1, dtype=torch.float64))
+        # Samples per class (speed band, and heading bin) in the fit (speed_pooled weighs the bands
+        # by them); zeros: unknown, as in a model saved before they were kept.
+        self.register_buffer("band_count", torch.zeros(n_class, dtype=torch.float64))
         # Place table (fit_place): log density ratio of fast users per table cell, float16 to keep
         # the saved model small; a single zero cell until measured, i.e. no place preference.
         self.register_buffer("place_speed", torch.tensor(math.inf, dtype=torch.float64))
@@ -164,6 +195,15 @@ class MotionTable(nn.Module):
                 setattr(self, name, torch.empty_like(state_dict[key]))
             else:
                 state_dict[key] = getattr(self, name)
+        # The acceleration table's classes depend on its frame; a model saved before frames were
+        # kept has the motion frame. Its bins' reach follows from their number (the bin width is
+        # the table kind's: metres on the grid, lattice steps on the lattice).
+        table = state_dict.get(prefix + "log_accel_table")
+        if table is not None:
+            self.log_accel_table = torch.empty_like(table)
+            self.band_count = torch.zeros(len(table), dtype=torch.float64)
+            self.reach = table.shape[1] * self.bin / 2
+        state_dict.setdefault(prefix + "headings", torch.tensor(0, dtype=torch.int64))
         if prefix + "band_count" not in state_dict:  # saved before the counts were kept
             state_dict[prefix + "band_count"] = torch.zeros_like(self.band_count)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
@@ -327,27 +367,30 @@ class MotionTable(nn.Module):
                 f"need weights turn, steer >= 0 with turn + steer <= 1, flat_step in [0, 1] and unit > 0, "
                 f"got {turn}, {steer}, {flat_step}, {unit}"
             )
-        out = MotionTable(
-            tuple(self.speed_edges.tolist()), self.bin, self.reach, len(self.log_step_table) * self.bin
-        )
-        out.load_state_dict(self.state_dict())
+        out = copy.deepcopy(self)
         out.drop_place()
         n_acc = self.log_accel_table.shape[1]
         c = -self.reach + (np.arange(n_acc) + 0.5) * self.bin
-        along, across = np.meshgrid(c, c, indexing="ij")
+        p, q = np.meshgrid(c, c, indexing="ij")
         edges = self.speed_edges.double().numpy()
         top = 1.4 * edges[-1] if len(edges) else self.reach / 2
         lo, hi = np.concatenate([[0.0], edges]), np.concatenate([edges, [top]])
         theta = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)[:, None, None]
-        for b, s in enumerate(0.5 * (lo + hi)):
+        h = int(self.headings)
+        for k in range(len(self.log_accel_table)):
+            s = 0.5 * (lo + hi)[k // max(h, 1)]
+            # the table's components along and across the motion: in the lattice frame the
+            # motion heads at the middle of its heading bin
+            phi = (k % h + 0.5) * np.pi / (2 * h) if h else 0.0
+            along, across = p * np.cos(phi) + q * np.sin(phi), q * np.cos(phi) - p * np.sin(phi)
             blur = (0.5 + 0.15 * s * unit) / unit
             d2 = (along - s * (np.cos(theta) - 1)) ** 2 + (across - s * np.sin(theta)) ** 2
             ring = np.exp(-d2 / (2 * blur**2)).mean(0) / (2 * np.pi * blur**2)
             sd = (steer_sigma[0] + steer_sigma[1] * s * unit) / unit
             noise = np.exp(-(along**2 + across**2) / (2 * sd**2)) / (2 * np.pi * sd**2)
-            measured = np.exp(self.log_accel_table[b].double().numpy())
+            measured = np.exp(self.log_accel_table[k].double().numpy())
             mix = (1 - turn - steer) * measured + turn * ring + steer * noise
-            out.log_accel_table[b] = torch.from_numpy(np.log(np.maximum(mix, 1e-300)))
+            out.log_accel_table[k] = torch.from_numpy(np.log(np.maximum(mix, 1e-300)))
         n_step = len(self.log_step_table)
         r = (np.arange(n_step) + 0.5) * self.bin
         flat = 1.0 / (2 * np.pi * r * n_step * self.bin)  # uniform in length up to the reach, per unit^2
@@ -367,33 +410,66 @@ class MotionTable(nn.Module):
         its band counts, or has fewer than two bands from ``above`` up with samples. The place
         table is kept.
         """
+        h = max(int(self.headings), 1)
         lower = np.concatenate([[0.0], self.speed_edges.double().numpy()])
         fast = np.flatnonzero(lower >= above)
-        counts = self.band_count.double().numpy()
-        used = fast[counts[fast] > 0]
-        if not bool(self.fitted) or len(used) < 2:
+        counts = self.band_count.double().numpy().reshape(-1, h)
+        if not bool(self.fitted) or (counts[fast].sum(1) > 0).sum() < 2:
             return None
         out = copy.deepcopy(self)
-        log_w = torch.from_numpy(np.log(counts[used] / counts[used].sum()))
-        mix = torch.logsumexp(self.log_accel_table[used].double() + log_w[:, None, None], 0)
-        out.log_accel_table[fast] = mix.to(out.log_accel_table.dtype)
+        for k in range(h):  # each heading bin pools its own
+            used = fast[counts[fast, k] > 0]
+            if not len(used):
+                continue
+            log_w = torch.from_numpy(np.log(counts[used, k] / counts[used, k].sum()))
+            mix = torch.logsumexp(self.log_accel_table[used * h + k].double() + log_w[:, None, None], 0)
+            out.log_accel_table[fast * h + k] = mix.to(out.log_accel_table.dtype)
         return out
 
     @classmethod
     def lattice(cls, n_sub: int = SUBCELLS) -> MotionTable:
         """An unfitted table for positions on the lattice of :func:`snap_to_lattice`, in grid units:
         one bin per lattice step, centred on the lattice's accelerations so that rounding cannot
-        move one to the next bin."""
-        return cls(bin=1.0 / n_sub, reach=16.0 + 0.5 / n_sub)
+        move one to the next bin, in the lattice's frame (``headings``)."""
+        return cls(bin=1.0 / n_sub, reach=16.0 + 0.5 / n_sub, headings=HEADINGS)
 
-    @staticmethod
-    def _frame(v: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Components of ``a`` along and across the direction of ``v`` (x axis where ``v = 0``)."""
-        n = v.norm(dim=-1, keepdim=True)
-        u = torch.where(n > 0, v / n.clamp(min=1e-9), torch.tensor([1.0, 0.0], dtype=v.dtype))
-        along = (a * u).sum(-1)
-        across = a[..., 1] * u[..., 0] - a[..., 0] * u[..., 1]
-        return along, across
+    @property
+    def heading_slopes(self) -> np.ndarray:
+        """Inner edges ``(headings - 1,)`` of the heading bins as slopes ``v_y / v_x`` within the
+        first quadrant (empty in the motion frame); the compiled kernels compare with the same
+        numbers."""
+        return heading_slopes(int(self.headings))
+
+    def _classify(self, v: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``a``'s two components in the table's frame after displacement ``v`` and ``v``'s class
+        (its speed band, and its heading bin in the lattice frame), broadcast."""
+        v, a = torch.broadcast_tensors(v, a)
+        n = v.norm(dim=-1)
+        band = torch.bucketize(n, self.speed_edges.to(n.dtype))
+        h = int(self.headings)
+        if h == 0:
+            u = torch.where(
+                (n > 0)[..., None], v / n.clamp(min=1e-9)[..., None], torch.tensor([1.0, 0.0], dtype=v.dtype)
+            )
+            along = (a * u).sum(-1)
+            across = a[..., 1] * u[..., 0] - a[..., 0] * u[..., 1]
+            return along, across, band
+        # the quarter turn that brings v into the quadrant x > 0, y >= 0 (none for v = 0)
+        vx, vy, ax, ay = v[..., 0], v[..., 1], a[..., 0], a[..., 1]
+        turn = torch.where(
+            (vx > 0) & (vy >= 0),
+            0,
+            torch.where((vx <= 0) & (vy > 0), 1, torch.where((vx < 0) & (vy <= 0), 2, 3)),
+        )
+        turn = torch.where((vx == 0) & (vy == 0), 0, turn)
+        # rotations by 0, -90, 180 and +90 degrees
+        cos = torch.tensor([1.0, 0.0, -1.0, 0.0], dtype=v.dtype)[turn]
+        sin = torch.tensor([0.0, -1.0, 0.0, 1.0], dtype=v.dtype)[turn]
+        cx, cy = cos * vx - sin * vy, sin * vx + cos * vy
+        one = torch.ones((), dtype=v.dtype)
+        slope = torch.where(cx > 0, cy / torch.where(cx > 0, cx, one), torch.zeros((), dtype=v.dtype))
+        heading = (slope[..., None] > torch.from_numpy(self.heading_slopes).to(v.dtype)).sum(-1)
+        return cos * ax - sin * ay, sin * ax + cos * ay, band * h + heading
 
     def _acc_index(self, x: torch.Tensor) -> torch.Tensor:
         return ((x + self.reach) / self.bin).long().clamp(0, self.log_accel_table.shape[1] - 1)
@@ -405,18 +481,34 @@ class MotionTable(nn.Module):
 
     def log_accel(self, v: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         """Log density (per m^2) of acceleration ``a (..., 2)`` after displacement ``v (..., 2)``."""
-        along, across = self._frame(v, a)
-        band = torch.bucketize(v.norm(dim=-1), self.speed_edges)
-        return self.log_accel_table[band, self._acc_index(along), self._acc_index(across)]
+        along, across, cls = self._classify(v, a)
+        return self.log_accel_table[cls, self._acc_index(along), self._acc_index(across)]
 
     @torch.no_grad()
-    def fit(self, positions: np.ndarray, smooth: float = 0.6, min_count: int = 200) -> MotionTable:
+    def fit(
+        self,
+        positions: np.ndarray,
+        smooth: float | None = None,
+        min_count: int = 200,
+        blend: float | None = None,
+    ) -> MotionTable:
         """Measure the tables on trajectories ``positions (n, L, 2)`` metres, ``L >= 3``.
 
         Pass the positions the candidates take, i.e. snapped to the grid. Histograms are smoothed
-        by a Gaussian of ``smooth`` bins and floored so that no motion is impossible; a speed band
-        with fewer than ``min_count`` samples uses the histogram of all speeds. Returns ``self``.
+        by a Gaussian of ``smooth`` bins (default 0.6 in the motion frame; none in the lattice
+        frame, whose accelerations are the lattice's own and a blur would smear their pattern) and
+        floored so that no motion is impossible; a class with fewer than ``min_count`` samples
+        uses the histogram of its speed band (all headings), then that of all speeds. In the
+        lattice frame every class's density is mixed with its speed band's blurred by 0.6 bins,
+        weight ``blend`` (default :data:`BLEND`), so that motion a little off the training users'
+        exact patterns stays likely, and the slowest band (no heading to speak of) has one density
+        for all headings, symmetric under quarter turns. Returns ``self``.
         """
+        lattice = int(self.headings) > 0
+        smooth = (0.0 if lattice else 0.6) if smooth is None else smooth
+        blend = (BLEND if lattice else 0.0) if blend is None else blend
+        if not 0.0 <= blend <= 1.0:
+            raise ValueError(f"blend must lie in [0, 1], got {blend}")
         from scipy.ndimage import gaussian_filter
 
         p = np.asarray(positions, dtype=np.float64)
@@ -437,24 +529,38 @@ class MotionTable(nn.Module):
         r = (np.arange(n_step) + 0.5) * self.bin
         self.log_step_table.copy_(torch.from_numpy(np.log(h / h.sum() / self.bin / (2 * np.pi * r))))
 
-        along, across = self._frame(v, a)
-        ia, ic = self._acc_index(along).numpy(), self._acc_index(across).numpy()
-        band = torch.bucketize(v.norm(dim=-1), self.speed_edges.double()).numpy()
+        along, across, cls = self._classify(v, a)
+        ia, ic, cls = self._acc_index(along).numpy(), self._acc_index(across).numpy(), cls.numpy()
         n_acc = self.log_accel_table.shape[1]
+        h = max(int(self.headings), 1)
 
-        def density(sel: np.ndarray) -> np.ndarray:
+        def density(sel: np.ndarray, blur: float) -> np.ndarray:
             hist = np.bincount(ia[sel] * n_acc + ic[sel], minlength=n_acc * n_acc).reshape(n_acc, n_acc)
             hist = (
-                gaussian_filter(hist.astype(np.float64), smooth) + 5e-3 * max(int(sel.sum()), 1) / hist.size
-            )
-            return np.log(hist / hist.sum() / self.bin**2)
+                gaussian_filter(hist.astype(np.float64), blur) if blur > 0 else hist.astype(np.float64)
+            ) + 5e-3 * max(int(sel.sum()), 1) / hist.size
+            return hist / hist.sum() / self.bin**2
 
-        pooled = density(np.ones(len(band), dtype=bool))
-        for b in range(len(self.log_accel_table)):
-            sel = band == b
-            self.log_accel_table[b] = torch.from_numpy(density(sel) if sel.sum() >= min_count else pooled)
+        everyone = np.ones(len(cls), dtype=bool)
+        pooled, pooled_wide = density(everyone, smooth), density(everyone, 0.6)
+        for c in range(len(self.log_accel_table)):
+            # a class with too few samples takes its speed band's histogram, then all speeds'
+            sel, band = cls == c, cls // h == c // h
+            own = band if sel.sum() < min_count else sel
+            dens = density(own, smooth) if own.sum() >= min_count else pooled
+            if blend > 0:
+                wide = density(band, 0.6) if band.sum() >= min_count else pooled_wide
+                dens = (1 - blend) * dens + blend * wide
+            self.log_accel_table[c] = torch.from_numpy(np.log(dens))
+        if lattice:
+            # Below the first speed edge a user (mostly one standing still) has no heading to turn
+            # its table by: one density for all those headings, the same under quarter turns, so
+            # that the table is the same however the lattice is turned.
+            slow = self.log_accel_table[:h].double().exp().mean(0).numpy()
+            slow = sum(np.rot90(slow, k) for k in range(4)) / 4
+            self.log_accel_table[:h] = torch.from_numpy(np.log(slow))
         self.band_count.copy_(
-            torch.from_numpy(np.bincount(band, minlength=len(self.band_count)).astype(np.float64))
+            torch.from_numpy(np.bincount(cls, minlength=len(self.band_count)).astype(np.float64))
         )
         self.fitted.fill_(True)
         return self

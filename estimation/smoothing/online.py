@@ -140,7 +140,7 @@ class _Beam:
         else:
             *pairs, marg = _threaded(
                 pair_forward, 7, self.xy.step(-2), self.xy.step(-1), xy, *(p.step(-1) for p in self._pairs), lp,
-                self.beam, m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+                self.beam, m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
@@ -169,7 +169,8 @@ class _Beam:
         pi, ci, la = (p.upto(T - 1) for p in self._pairs)
         return _threaded(
             beam_smooth, 5, self.points(T), self.likelihoods(T), pi, ci, la,
-            m.speed_edges, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+            m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place,
+            m.accel_prob,
         )  # fmt: skip
 
 

@@ -441,9 +441,9 @@ class MotionTable(nn.Module):
         return heading_slopes(int(self.headings))
 
     def _classify(self, v: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``a``'s two components in the table's frame after displacement ``v`` and ``v``'s class
-        (its speed band, and its heading bin in the lattice frame), broadcast."""
-        v, a = torch.broadcast_tensors(v, a)
+        """``a``'s two components in the table's frame after displacement ``v`` (broadcast) and
+        ``v``'s class (its speed band, and its heading bin in the lattice frame; ``v``'s shape):
+        what depends on ``v`` alone is computed once per ``v``."""
         n = v.norm(dim=-1)
         band = torch.bucketize(n, self.speed_edges.to(n.dtype))
         h = int(self.headings)
@@ -455,7 +455,7 @@ class MotionTable(nn.Module):
             across = a[..., 1] * u[..., 0] - a[..., 0] * u[..., 1]
             return along, across, band
         # the quarter turn that brings v into the quadrant x > 0, y >= 0 (none for v = 0)
-        vx, vy, ax, ay = v[..., 0], v[..., 1], a[..., 0], a[..., 1]
+        vx, vy = v[..., 0], v[..., 1]
         turn = torch.where(
             (vx > 0) & (vy >= 0),
             0,
@@ -468,8 +468,8 @@ class MotionTable(nn.Module):
         cx, cy = cos * vx - sin * vy, sin * vx + cos * vy
         one = torch.ones((), dtype=v.dtype)
         slope = torch.where(cx > 0, cy / torch.where(cx > 0, cx, one), torch.zeros((), dtype=v.dtype))
-        heading = (slope[..., None] > torch.from_numpy(self.heading_slopes).to(v.dtype)).sum(-1)
-        return cos * ax - sin * ay, sin * ax + cos * ay, band * h + heading
+        heading = torch.searchsorted(torch.from_numpy(self.heading_slopes).to(v.dtype), slope)
+        return cos * a[..., 0] - sin * a[..., 1], sin * a[..., 0] + cos * a[..., 1], band * h + heading
 
     def _acc_index(self, x: torch.Tensor) -> torch.Tensor:
         return ((x + self.reach) / self.bin).long().clamp(0, self.log_accel_table.shape[1] - 1)

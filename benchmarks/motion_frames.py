@@ -21,10 +21,11 @@ import torch
 
 def _snapped(positions: np.ndarray, grid_xy: np.ndarray) -> np.ndarray:
     """Positions ``(n, L, 2)`` metres in grid units from the first grid point, on the lattice."""
+    from estimation.models.candidate_transformer import _place_frames
     from estimation.smoothing.motion import snap_to_lattice
 
-    spacing = float(np.diff(np.unique(grid_xy[:, 0])).min())
-    return snap_to_lattice((positions - grid_xy.min(0)) / spacing)
+    lo, spacing, _, _ = _place_frames(grid_xy)  # the frame CandidateTransformer.fit_motion snaps in
+    return snap_to_lattice((positions - lo) / spacing)
 
 
 def _lattice_steps(positions: np.ndarray, grid_xy: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:

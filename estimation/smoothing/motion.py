@@ -534,24 +534,26 @@ class MotionTable(nn.Module):
         n_acc = self.log_accel_table.shape[1]
         h = max(int(self.headings), 1)
 
-        def density(sel: np.ndarray, blur: float) -> np.ndarray:
-            hist = np.bincount(ia[sel] * n_acc + ic[sel], minlength=n_acc * n_acc).reshape(n_acc, n_acc)
-            hist = (
-                gaussian_filter(hist.astype(np.float64), blur) if blur > 0 else hist.astype(np.float64)
-            ) + 5e-3 * max(int(sel.sum()), 1) / hist.size
-            return hist / hist.sum() / self.bin**2
+        n_class = len(self.log_accel_table)
+        # every class's histogram in one pass; a band's is the sum of its heading bins'
+        hist = np.bincount((cls * n_acc + ia) * n_acc + ic, minlength=n_class * n_acc * n_acc)
+        hist = hist.reshape(n_class, n_acc, n_acc).astype(np.float64)
+        bands = hist.reshape(-1, h, n_acc, n_acc).sum(1)
 
-        everyone = np.ones(len(cls), dtype=bool)
-        pooled, pooled_wide = density(everyone, smooth), density(everyone, 0.6)
-        for c in range(len(self.log_accel_table)):
+        def density(counts: np.ndarray, blur: float) -> np.ndarray:
+            n = counts.sum()
+            d = (gaussian_filter(counts, blur) if blur > 0 else counts) + 5e-3 * max(n, 1) / counts.size
+            return d / d.sum() / self.bin**2
+
+        pooled, pooled_wide = density(bands.sum(0), smooth), density(bands.sum(0), 0.6)
+        for b, band in enumerate(bands):
             # a class with too few samples takes its speed band's histogram, then all speeds'
-            sel, band = cls == c, cls // h == c // h
-            own = band if sel.sum() < min_count else sel
-            dens = density(own, smooth) if own.sum() >= min_count else pooled
-            if blend > 0:
-                wide = density(band, 0.6) if band.sum() >= min_count else pooled_wide
-                dens = (1 - blend) * dens + blend * wide
-            self.log_accel_table[c] = torch.from_numpy(np.log(dens))
+            enough = band.sum() >= min_count
+            shared = density(band, smooth) if enough else pooled
+            wide = (density(band, 0.6) if enough else pooled_wide) if blend > 0 else 0.0
+            for c in range(b * h, (b + 1) * h):
+                dens = density(hist[c], smooth) if hist[c].sum() >= min_count else shared
+                self.log_accel_table[c] = torch.from_numpy(np.log((1 - blend) * dens + blend * wide))
         if lattice:
             # Below the first speed edge a user (mostly one standing still) has no heading to turn
             # its table by: one density for all those headings, the same under quarter turns, so

@@ -7,7 +7,8 @@ Both start from the same matcher candidates of the same noisy fingerprints (seen
 * offline: the dense smoothers re-run on every prefix (``candidate_features``, ``subcell_mean``:
   ``O(T K^3)`` per prefix), what evaluation did before;
 * online: :class:`~estimation.smoothing.online.CandidateFilter`, one forward update per step and
-  one backward pass per prefix.
+  one backward pass per prefix (all of them through one ``smooth_prefixes`` call, as evaluation
+  runs them).
 
 Prints seconds per 1000 sequences (after a warm-up call that compiles the kernels) for the 7-step table (search included, then without it), for
 every prefix 2..7 as evaluation runs them, and for one online update per user and step; the mean
@@ -71,7 +72,7 @@ def main() -> None:
     filters, t_fwd = timed(lambda: [est.candidate_filter().run(xy, score) for xy, score in found])
     on7, t_bwd7 = timed(lambda: torch.cat([est.predict(f.smooth(7)) for f in filters]))
     _, t_bwd_all = timed(
-        lambda: [torch.cat([est.predict(f.smooth(L)) for f in filters]) for L in range(2, 8)]
+        lambda: [[est.predict(x) for x in f.smooth_prefixes(list(range(2, 8)))] for f in filters]
     )
 
     def row(label: str, pred: torch.Tensor) -> str:

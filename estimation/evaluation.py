@@ -53,15 +53,37 @@ def _per_prefix(
     over the longest crop (each step's result is its own, so a prefix's is a prefix), ``finish``
     sees only the first ``L`` steps of it (no look-ahead); each length is charged its share of the
     per-step time."""
+    return _shared_prefixes(
+        bits, lengths, lambda b: [per_step(b)], lambda found, lens: [found] * len(lens), finish
+    )
+
+
+def _shared_prefixes(
+    bits: torch.Tensor,
+    lengths: list[int],
+    per_step: Callable[[torch.Tensor], list[Any]],
+    smooth: Callable[[Any, list[int]], list[Any]],
+    finish: Callable[[Any, int], np.ndarray],
+) -> dict[int, tuple[np.ndarray, float]]:
+    """:func:`_per_prefix` for per-step work split in parts (batches) whose prefixes share work:
+    ``smooth(part, lengths)`` gives what ``finish(x, L)`` reads for each length, from the first
+    ``L`` steps only; each length is charged its share of the per-step time, its share (by its
+    number of steps) of the shared time, and its own ``finish``."""
     Lmax = max(lengths)
     t0 = time.perf_counter()
-    found = per_step(bits[:, :Lmax])
+    parts = per_step(bits[:, :Lmax])
     step_seconds = (time.perf_counter() - t0) / Lmax
-    out = {}
-    for L in lengths:
+    preds: dict[int, list[np.ndarray]] = {L: [] for L in lengths}
+    seconds = {L: step_seconds * L for L in lengths}
+    for part in parts:
         t1 = time.perf_counter()
-        out[L] = (finish(found, L), step_seconds * L + time.perf_counter() - t1)
-    return out
+        shared = smooth(part, lengths)
+        per_step_shared = (time.perf_counter() - t1) / sum(lengths)
+        for L, x in zip(lengths, shared, strict=True):
+            t2 = time.perf_counter()
+            preds[L].append(finish(x, L))
+            seconds[L] += per_step_shared * L + time.perf_counter() - t2
+    return {L: (np.concatenate(preds[L]), seconds[L]) for L in lengths}
 
 
 class NetworkMethod:
@@ -129,10 +151,13 @@ class NetworkMethod:
             parts = (self.est.search(b[k : k + _BATCH].float()) for k in range(0, len(b), _BATCH))
             return [self.est.candidate_filter().run(*found) for found in parts]
 
-        def finish(filters: list, L: int) -> np.ndarray:
-            return torch.cat([self.est.predict(f.smooth(L)) for f in filters]).numpy().astype(np.float64)
-
-        return _per_prefix(bits, lengths, forward, finish)
+        return _shared_prefixes(
+            bits,
+            lengths,
+            forward,
+            lambda f, lens: f.smooth_prefixes(lens),
+            lambda x, L: self.est.predict(x).numpy().astype(np.float64),
+        )
 
     def _predict(self, x: torch.Tensor) -> np.ndarray:
         return (
@@ -210,11 +235,12 @@ class MatchSmootherMethod:
 
     def predict_lengths(self, bits: torch.Tensor, lengths: list[int]) -> dict[int, tuple[np.ndarray, float]]:
         assert self.model is not None
-        return _per_prefix(
+        return _shared_prefixes(
             bits,
             lengths,
-            lambda b: self.model.filter(*self.model.search(b.float())),
-            lambda f, L: f.smooth(L)[2].numpy().astype(np.float64),
+            lambda b: [self.model.filter(*self.model.search(b.float()))],
+            lambda f, lens: f.smooth_prefixes(lens),
+            lambda x, L: x[2].numpy().astype(np.float64),
         )
 
 

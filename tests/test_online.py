@@ -70,7 +70,7 @@ def test_forward_filter_equals_the_smoothers_last_step_marginal(beam, motion):
     f = CandidateFilter(motion, k=10, beam=beam)
     for t in range(7):
         f.update(xy[:, t], score[:, t])
-        smoothed_last = f.cells.smooth(t + 1)[:, -1]
+        smoothed_last = f.cells.smooth([t + 1])[0][:, -1]
         np.testing.assert_allclose(np.exp(f.cells.marg[-1]), np.exp(smoothed_last), atol=1e-9)
 
 
@@ -87,6 +87,66 @@ def test_the_beam_keeps_the_largest_pairs_in_index_order_ties_included_by_index(
     assert _keep_best(dense, 10, pi, ci, la) == 8
     assert list(la[:8]) == [1.0, 5.0, 3.0, 3.0, 4.0, 3.0, 2.0, 0.5] and (la[8:] == _NEG).all()
     assert list(pi[:8]) == [0, 0, 0, 1, 1, 2, 2, 2]
+
+
+def _forward_reference(xpp, xp, xc, pi, ci, la, lp, M, motion):
+    """pair_forward written out in logs: each new pair's message is the log-sum-exp over the kept
+    pairs it continues of message plus acceleration density, plus its likelihood and place; the
+    M largest kept in index order."""
+    B, Kp, K = xp.shape[0], xp.shape[1], xc.shape[1]
+    out = []
+    for b in range(B):
+        dense = np.full((Kp, K), -np.inf)
+        for q in np.flatnonzero(la[b] > -1e299):
+            a0, a1 = pi[b, q], ci[b, q]
+            v = torch.from_numpy(xp[b, a1] - xpp[b, a0]).expand(K, 2)
+            a = torch.from_numpy(xc[b] - xp[b, a1]) - v
+            dense[a1] = np.logaddexp(dense[a1], la[b, q] + motion.log_accel(v, a).double().numpy())
+        w = torch.from_numpy(xc[b][None] - xp[b][:, None])
+        place = motion.log_place_ratio(w, torch.from_numpy(xc[b]).expand(Kp, K, 2)).double().numpy()
+        dense = (dense + lp[b][None] + place).ravel()
+        keep = np.sort(np.argsort(-dense, kind="stable")[:M])
+        keep = keep[np.isfinite(dense[keep])]
+        out.append((keep // K, keep % K, dense[keep]))
+    return out
+
+
+@pytest.mark.parametrize(
+    "motion", [MOTION, PLACED, LATTICE_FRAME], ids=["motion", "with-place", "lattice-frame"]
+)
+@pytest.mark.parametrize("M", [15, 64], ids=["pruned", "all"])
+@pytest.mark.parametrize("far", [False, True], ids=["near", "far-likelihoods"])
+def test_a_forward_step_keeps_the_pairs_and_messages_a_log_domain_step_keeps(motion, M, far):
+    """The kernel picks the kept pairs by products of probabilities (one logarithm per kept pair);
+    where products underflow (likelihoods 800 nats apart) it falls back to logs."""
+    from estimation.smoothing.beam import pair_forward, pair_start
+
+    xy, score = _candidates(B=4, T=3, S=8, seed=3)
+    xy, lp = xy.double().numpy(), torch.log_softmax(score.double(), -1).numpy()
+    if far:
+        lp[:, 2, 5:] -= 800.0
+    m = motion_arrays(motion)
+    pi, ci, la, _ = pair_start(xy[:, 0], xy[:, 1], lp[:, 0], lp[:, 1], 64, m.step_table, m.bin, m.place)
+    args = (xy[:, 0], xy[:, 1], xy[:, 2], pi, ci, la, lp[:, 2])
+    npi, nci, nla, marg = pair_forward(
+        *args,
+        M,
+        m.speed_edges,
+        m.headings,
+        m.heading_slopes,
+        m.accel_table,
+        m.bin,
+        m.reach,
+        m.place,
+        m.accel_prob,
+    )
+    for b, (rpi, rci, rla) in enumerate(_forward_reference(*args, M, motion)):
+        n = len(rla)
+        assert n == min(M, 64) and (nla[b, n:] <= -1e299).all()
+        np.testing.assert_array_equal(npi[b, :n], rpi)
+        np.testing.assert_array_equal(nci[b, :n], rci)
+        np.testing.assert_allclose(nla[b, :n], rla, rtol=0, atol=1e-5)
+    assert np.allclose(np.exp(marg).sum(1), 1.0)
 
 
 @pytest.mark.parametrize("place", [False, True], ids=["motion", "with-place"])
@@ -126,6 +186,50 @@ def test_a_prefix_never_sees_the_steps_after_it():
         assert torch.equal(a, b)
 
 
+def test_all_prefixes_at_once_are_each_prefix_smoothed_alone():
+    tr = toy_sequence_set(64, 6, seed=0)
+    lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
+    xy, score = _candidates(B=5, T=9, S=12)
+    xy = torch.round(xy)
+
+    def make():
+        # both stages, an alternative model and a pruned beam, as tn-match runs it
+        return CandidateFilter(
+            MOTION,
+            lattice,
+            1.0,
+            k=8,
+            beam=30,
+            fine_k=3,
+            fine_beam=40,
+            alternative=(MOTION.broadened(), lattice.broadened()),
+        ).run(xy, score)
+
+    f = make()
+    lengths = [9, 2, 5, 1, 5, 7]  # any order, repeats and the first step alone
+    together = f.smooth_prefixes(lengths)
+    for T, got in zip(lengths, together, strict=True):
+        for a, b in zip(got, make().smooth(T), strict=True):
+            assert torch.equal(a, b)
+    with pytest.raises(ValueError, match="can smooth 1..9 steps"):
+        f.smooth_prefixes([3, 10])
+
+
+def test_a_tables_kernel_arrays_are_made_once_and_again_when_it_changes():
+    table = MotionTable().fit(_tracks(50))
+    first = motion_arrays(table)
+    assert motion_arrays(table) is first
+    table.log_accel_table[0, 0, 0] += 1.0  # changed in place
+    changed = motion_arrays(table)
+    assert changed is not first and changed.accel_table[0, 0, 0] == pytest.approx(
+        first.accel_table[0, 0, 0] + 1.0
+    )
+    table.log_place = table.log_place.clone()  # a buffer replaced
+    assert motion_arrays(table) is not changed
+    table.bin = table.bin * 2  # a plain attribute
+    assert motion_arrays(table).bin == 2 * changed.bin
+
+
 def test_same_bytes_whatever_the_batch_and_the_threads():
     xy, score = _candidates(B=70, T=5, S=12)
     runs = []
@@ -148,6 +252,27 @@ def test_hand_set_mixture_is_tabulated_at_its_densities():
     a = torch.tensor([[centre[i], centre[j]]], dtype=torch.float64)
     exact = mix.log_accel(torch.zeros(1, 2, dtype=torch.float64), a)
     assert arr.accel_table[0, i, j] == pytest.approx(float(exact[0]), abs=1e-5)
+
+
+def test_prediction_in_chunks_is_prediction_at_once():
+    from estimation import estimator as estimator_module
+
+    va = toy_sequence_set(70, 4, seed=2)
+    bits = noisy_bits(va, 6.0, torch.Generator().manual_seed(3))
+    torch.manual_seed(0)
+    cfg = TrainConfig(model="tn-match", sigma=6.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
+    x = est.inputs(bits.float())
+    chunked = est.predict(x)  # 70 sequences: chunks of 64 and 6
+    assert chunked.shape == (70, 4, 2)
+    old, estimator_module.PREDICT_CHUNK = estimator_module.PREDICT_CHUNK, 1000
+    try:
+        whole = est.predict(x)
+    finally:
+        estimator_module.PREDICT_CHUNK = old
+    assert torch.allclose(chunked, whole, atol=1e-5)
+    assert torch.equal(est.predict(bits.float()), chunked)  # from the bits: the same inputs
+    assert est.predict(tuple(t[:0] for t in x)).shape == (0, 4, 2)
 
 
 def test_online_tracker_updates_per_step_and_tracks_like_predict():

@@ -6,7 +6,8 @@ step. Almost all of that mass sits on a few pairs, so these kernels keep the ``M
 pairs of each step (a beam) and work in ``O(M K)`` per step: a forward step needs only the last
 step's pairs, so a user's estimate is updated in constant time per fingerprint, and the stored
 pairs give the smoothed marginals of any prefix by one backward pass (:func:`beam_smooth`, one call
-for all its steps). A step's kept pairs are stored in index order (by their candidate at the step
+for any set of prefixes, which bins the accelerations between consecutive steps' pairs once for all
+of them). A step's kept pairs are stored in index order (by their candidate at the step
 before, then at the step), so the backward pass finds the pairs that continue a pair without
 sorting. With ``M >= K^2`` nothing is pruned and the result is the dense smoother's.
 
@@ -18,6 +19,7 @@ compiled code, in float64, and are deterministic (ties are broken by index order
 from __future__ import annotations
 
 import math
+import weakref
 from typing import NamedTuple
 
 import numpy as np
@@ -39,6 +41,9 @@ _NEG = -1e300  # log of a pair that was pruned (or an impossible one)
 # A term this far (log) below the largest of its sum changes it by less than float64 resolves
 # (e^-40 = 4e-18), so its exponential is not computed.
 _NEGLIGIBLE = -40.0
+# Products of probabilities below this have lost precision to underflow (1e-308 is the smallest
+# normal float64).
+_TINY = 1e-290
 
 
 class MotionArrays(NamedTuple):
@@ -56,10 +61,39 @@ class MotionArrays(NamedTuple):
 
 
 def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
-    """The kernels' view of ``motion``; a hand-set :class:`MixtureMotion` is tabulated on a
-    :class:`MotionTable`'s bins first (its densities at the bin centres)."""
+    """The kernels' view of ``motion`` (read only); a hand-set :class:`MixtureMotion` is tabulated
+    on a :class:`MotionTable`'s bins first (its densities at the bin centres).
+
+    A table's arrays are made once and kept while the table lives and none of its buffers is
+    replaced or changed in place: a filter is made per batch, and converting the sub-cell tables
+    costs more than a batch's forward step."""
     if isinstance(motion, MixtureMotion):
-        motion = _tabulate(motion)
+        return _arrays(_tabulate(motion))
+    stamp = (float(motion.bin), float(motion.reach), *((b, b._version) for b in motion.buffers()))
+    kept = _KEPT.get(motion)
+    if (
+        kept is not None
+        and len(kept[0]) == len(stamp)
+        and all(_same(a, b) for a, b in zip(kept[0], stamp, strict=True))
+    ):
+        return kept[1]
+    arrays = _arrays(motion)
+    _KEPT[motion] = (stamp, arrays)
+    return arrays
+
+
+# table -> (stamp, arrays): the stamp holds the buffers themselves, so that a replaced buffer
+# is told apart by identity (its id cannot be reused while the stamp holds it)
+_KEPT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, tuple):
+        return a[0] is b[0] and a[1] == b[1]
+    return a == b
+
+
+def _arrays(motion: MotionTable) -> MotionArrays:
     place = (
         float(motion.place_speed),
         motion.log_place.float().numpy().copy(),
@@ -101,14 +135,24 @@ def _log_first(vx, vy, step_table, bin_):
 
 
 @njit(cache=True, inline="always")
+def _count_below(edges, x):
+    # how many of the ascending edges lie below x (torch.bucketize's bin), by bisection
+    lo, hi = 0, len(edges)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if edges[mid] < x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, inline="always")
 def _frame(vx, vy, speed_edges, headings, slopes):
     """MotionTable._classify after the displacement ``v``: the map ``(f00, f01, f10, f11)`` of an
     acceleration to the table's frame and the class of ``v`` (speed band, and heading bin)."""
     n = math.sqrt(vx * vx + vy * vy)
-    band = 0
-    for e in speed_edges:
-        if e < n:
-            band += 1
+    band = _count_below(speed_edges, n)
     if headings == 0:
         ux, uy = (vx / n, vy / n) if n > 0 else (1.0, 0.0)
         return ux, uy, -uy, ux, band
@@ -125,28 +169,49 @@ def _frame(vx, vy, speed_edges, headings, slopes):
         c, s = 0.0, 1.0
     cx, cy = c * vx - s * vy, s * vx + c * vy
     # the number of bin edges below the slope, as MotionTable._classify counts them
-    k = np.searchsorted(slopes, cy / cx if cx > 0 else 0.0)
+    k = _count_below(slopes, cy / cx if cx > 0 else 0.0)
     return c, -s, s, c, band * headings + k
 
 
 @njit(cache=True, inline="always")
-def _accel_bin(f00, f01, f10, f11, ax, ay, n, bin_, reach):
-    # MotionTable.log_accel: the acceleration in the table's frame (see _frame), in its class's
-    # n x n table.
-    i = min(max(int((f00 * ax + f01 * ay + reach) / bin_), 0), n - 1)
-    j = min(max(int((f10 * ax + f11 * ay + reach) / bin_), 0), n - 1)
-    return i, j
+def _accel_scale(f00, f01, f10, f11, bin_, reach):
+    """The frame map of :func:`_frame` scaled to bins, and the offset of the table's first bin:
+    what :func:`_accel_index` reads a class's table with."""
+    inv = 1.0 / bin_
+    return f00 * inv, f01 * inv, f10 * inv, f11 * inv, reach * inv
+
+
+@njit(cache=True, inline="always")
+def _accel_index(wx, wy, vx, vy, g00, g01, g10, g11, c, n, idx):
+    """MotionTable.log_accel's bins: the flat indices ``idx (len(wx),)`` into a class's ``n x n``
+    table of the accelerations ``(wx - vx, wy - vy)`` in the table's frame (scaled by
+    :func:`_accel_scale`; the tensor code's bins exactly where the bin is a power of two or the
+    accelerations lie at bin centres, as a lattice's do). Forward and backward passes both read a
+    table through this loop, so they read the same bins; indices first, then the table, so that
+    both loops vectorise."""
+    hi = n - 1
+    for r in range(len(wx)):
+        ax, ay = wx[r] - vx, wy[r] - vy
+        i = min(max(int(g00 * ax + g01 * ay + c), 0), hi)
+        j = min(max(int(g10 * ax + g11 * ay + c), 0), hi)
+        idx[r] = i * n + j
+
+
+@njit(cache=True, inline="always")
+def _place_at(x, y, place):
+    # MotionTable.log_place_ratio of a fast user at x: the place table at the cell holding x.
+    _, table, origin, res = place
+    i = min(max(int(math.floor((x - origin[0]) / res)), 0), table.shape[0] - 1)
+    j = min(max(int(math.floor((y - origin[1]) / res)), 0), table.shape[1] - 1)
+    return table[i, j]
 
 
 @njit(cache=True, inline="always")
 def _log_place(x, y, vx, vy, place):
     # MotionTable.log_place_ratio: the place table at the cell holding x if v is fast, else 0.
-    speed, table, origin, res = place
-    if vx * vx + vy * vy <= speed * speed:
+    if vx * vx + vy * vy <= place[0] * place[0]:
         return 0.0
-    i = min(max(int(math.floor((x - origin[0]) / res)), 0), table.shape[0] - 1)
-    j = min(max(int(math.floor((y - origin[1]) / res)), 0), table.shape[1] - 1)
-    return table[i, j]
+    return _place_at(x, y, place)
 
 
 @njit(cache=True, nogil=True)
@@ -195,18 +260,18 @@ def rw_step(prev_xy, prev_f, xy, lp, inv_two_s2):
 
 
 @njit(cache=True, nogil=True)
-def _keep_best(dense, M, pi, ci, la):
-    """The ``M`` largest finite entries of ``dense (Kp, K)`` into ``pi, ci, la`` in index order
-    (row-major: ``pi`` ascending), ties at the cut taken in index order too; padded with
-    ``_NEG``. Returns how many."""
+def _keep_best(dense, M, pi, ci, la, lowest=_NEG):
+    """The ``M`` largest entries above ``lowest`` of ``dense (Kp, K)`` into ``pi, ci, la`` in
+    index order (row-major: ``pi`` ascending), ties at the cut taken in index order too; padded
+    with ``_NEG``. Returns how many."""
     K = dense.shape[1]
     flat = dense.ravel()
     N = len(flat)
     n_ok = 0
     for q in range(N):
-        if flat[q] > _NEG:
+        if flat[q] > lowest:
             n_ok += 1
-    cut, ties = _NEG, 0
+    cut, ties = lowest, 0
     if n_ok > M:
         # A selection, not a sort: the kept pairs' order is the index order.
         cut = np.partition(flat, N - M)[N - M]
@@ -217,7 +282,7 @@ def _keep_best(dense, M, pi, ci, la):
     n = 0
     for q in range(N):
         v = flat[q]
-        if v > cut or (v == cut and ties > 0 and v > _NEG):
+        if v > cut or (v == cut and ties > 0 and v > lowest):
             if v == cut:
                 ties -= 1
             pi[n], ci[n], la[n] = q // K, q % K, v
@@ -308,9 +373,17 @@ def pair_forward(
     nci = np.empty((B, M), np.int64)
     nla = np.empty((B, M))
     marg = np.empty((B, K))
-    dense = np.empty((Kp, K))
+    dense, key = np.empty((Kp, K)), np.empty((Kp, K))
+    wx, wy = np.empty((Kp, K)), np.empty((Kp, K))
+    idx = np.empty(K, np.int64)
+    weight = np.empty((2, K))
+    flat_prob = accel_prob.reshape(accel_prob.shape[0], -1)
     a_max = accel_table.max()
+    speed2 = place[0] * place[0]
     for b in range(B):
+        for i in range(Kp):
+            for j in range(K):
+                wx[i, j], wy[i, j] = xc[b, j, 0] - xp[b, i, 0], xc[b, j, 1] - xp[b, i, 1]
         # Sums of exp(la_q + a_qj) are kept relative to the best pair's message (one exponential
         # per pair, the accelerations' densities multiplied in). The best pair goes first: once a
         # pair's message plus the likeliest acceleration lies _NEGLIGIBLE below the largest term
@@ -328,29 +401,53 @@ def pair_forward(
             a0, a1 = pi[b, q], ci[b, q]
             vx, vy = xp[b, a1, 0] - xpp[b, a0, 0], xp[b, a1, 1] - xpp[b, a0, 1]
             f00, f01, f10, f11, cls = _frame(vx, vy, speed_edges, headings, slopes)
+            g00, g01, g10, g11, c = _accel_scale(f00, f01, f10, f11, bin_, reach)
+            _accel_index(wx[a1], wy[a1], vx, vy, g00, g01, g10, g11, c, n_acc, idx)
             scale = math.exp(la[b, q] - ref)
-            prob = accel_prob[cls]
+            prob = flat_prob[cls]
             row = dense[a1]
+            p_big = np.float32(0.0)
             for j in range(K):
-                # the same arithmetic as _backward_step's, so both read the same bin
-                ax = xc[b, j, 0] - xp[b, a1, 0] - vx
-                ay = xc[b, j, 1] - xp[b, a1, 1] - vy
-                u, w = _accel_bin(f00, f01, f10, f11, ax, ay, n_acc, bin_, reach)
-                term = scale * prob[u, w]
-                row[j] += term
-                big = max(big, term)
+                pv = prob[idx[j]]
+                row[j] += scale * pv
+                p_big = max(p_big, pv)
+            big = max(big, scale * p_big)
             top = ref + math.log(big) if big > 0 else top
+        # The new pairs' messages are log(dense) + ref + lp + place. The beam keeps the M largest;
+        # those are the M largest of dense * exp(lp + place - h) (h: the largest lp + place), so
+        # only the kept pairs need a logarithm. A product below _TINY has lost precision (or
+        # underflowed): with fewer than M above it, every message is computed in logs.
+        h = -np.inf
+        for j in range(K):
+            fast = _place_at(xc[b, j, 0], xc[b, j, 1], place)
+            weight[0, j], weight[1, j] = lp[b, j], lp[b, j] + fast
+            h = max(h, weight[0, j], weight[1, j])
+        for j in range(K):
+            weight[0, j], weight[1, j] = math.exp(weight[0, j] - h), math.exp(weight[1, j] - h)
+        n_good = 0
         for i in range(Kp):
             for j in range(K):
-                d = dense[i, j]
-                if d > 0:
-                    vx, vy = xc[b, j, 0] - xp[b, i, 0], xc[b, j, 1] - xp[b, i, 1]
+                k = dense[i, j] * weight[int(wx[i, j] * wx[i, j] + wy[i, j] * wy[i, j] > speed2), j]
+                key[i, j] = k
+                n_good += k > _TINY
+        if n_good >= M:
+            n = _keep_best(key, M, npi[b], nci[b], nla[b], 0.0)
+            for q in range(n):
+                nla[b, q] = math.log(nla[b, q]) + ref + h
+        else:
+            for i in range(Kp):
+                for j in range(K):
+                    d = dense[i, j]
+                    fast = wx[i, j] * wx[i, j] + wy[i, j] * wy[i, j] > speed2
                     dense[i, j] = (
-                        math.log(d) + ref + lp[b, j] + _log_place(xc[b, j, 0], xc[b, j, 1], vx, vy, place)
+                        math.log(d)
+                        + ref
+                        + lp[b, j]
+                        + (_place_at(xc[b, j, 0], xc[b, j, 1], place) if fast else 0.0)
+                        if d > 0
+                        else _NEG
                     )
-                else:
-                    dense[i, j] = _NEG
-        _keep_best(dense, M, npi[b], nci[b], nla[b])
+            _keep_best(dense, M, npi[b], nci[b], nla[b])
         _marginal(nla[b], nci[b], K, marg[b])
     return npi, nci, nla, marg
 
@@ -369,61 +466,72 @@ def _group(pi, n, Kp, start):
 
 
 @njit(cache=True, nogil=True)
-def _backward_step(xpp, xp, xc, ppi, pci, pla, ci, start, beta, lp, tables, floor, work, out):
-    """One sequence's backward messages ``out (Mp,)`` of the kept pairs of step t-1 from those
-    of step t (``beta``, over its kept pairs grouped by ``start``, see :func:`_group`). A term
-    whose rest lies ``floor`` below its group's largest is left out. ``work``: scratch arrays."""
+def _transitions(xpp, xp, xc, ppi, pci, pla, ci, start, tables, row, val, idx):
+    """The acceleration densities from each kept pair of step t-1 to the kept pairs of step t
+    that continue it: pair ``q``'s are ``val[row[q]:row[q + 1]]``, one per pair of its candidate
+    at t-1's group (``start``, see :func:`_group`), in the group's order. They do not depend on
+    the steps after t, so every prefix's backward pass reads them."""
     speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob = tables
-    rest, scale, gwx, gwy, head, count = work
-    Kp = xp.shape[0]
     n_acc = accel_table.shape[1]
-    out[:] = _NEG
-    # Per pair of step t, what does not depend on the pair of t-1 it continues (its place,
-    # likelihood and backward message, relative to the largest of its candidate's group) and
-    # its displacement, packed group by group: the loop over the pairs of t-1 below reads each
-    # group's terms in a row instead of through the pair indices.
-    for i in range(Kp):
+    flat_prob = accel_prob.reshape(accel_prob.shape[0], -1)
+    gwx, gwy = np.empty(len(ci)), np.empty(len(ci))
+    for i in range(xp.shape[0]):
+        for m in range(start[i], start[i + 1]):
+            gwx[m], gwy[m] = xc[ci[m], 0] - xp[i, 0], xc[ci[m], 1] - xp[i, 1]
+    row[0] = 0
+    for q in range(len(ppi)):
+        a1 = pci[q]
+        lo, n_r = start[a1], start[a1 + 1] - start[a1]
+        row[q + 1] = row[q]
+        if pla[q] <= _NEG or n_r == 0:
+            continue
+        vx, vy = xp[a1, 0] - xpp[ppi[q], 0], xp[a1, 1] - xpp[ppi[q], 1]
+        f00, f01, f10, f11, cls = _frame(vx, vy, speed_edges, headings, slopes)
+        g00, g01, g10, g11, c = _accel_scale(f00, f01, f10, f11, bin_, reach)
+        _accel_index(gwx[lo : lo + n_r], gwy[lo : lo + n_r], vx, vy, g00, g01, g10, g11, c, n_acc, idx)
+        prob = flat_prob[cls]
+        o = row[q]
+        for r in range(n_r):
+            val[o + r] = prob[idx[r]]
+        row[q + 1] = o + n_r
+
+
+@njit(cache=True, nogil=True)
+def _backward_step(pci, pla, start, base, beta, row, val, floor, scale, head, out):
+    """One sequence's backward messages ``out (Mp,)`` of the kept pairs of step t-1 from those
+    of step t (``beta``, over its kept pairs grouped by ``start``, see :func:`_group`), through
+    :func:`_transitions`' densities ``row, val``. ``base``: each pair of t's place and likelihood
+    at t. A term whose rest lies ``floor`` below its group's largest is left out (its scale is
+    zero). ``scale, head``: scratch."""
+    for i in range(len(start) - 1):
         h = -np.inf
         for m in range(start[i], start[i + 1]):
-            if beta[m] <= _NEG:
-                rest[m] = -np.inf
-                continue
-            j = ci[m]
-            wx, wy = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
-            rest[m] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[j] + beta[m]
-            h = max(h, rest[m])
+            if beta[m] > _NEG:
+                h = max(h, base[m] + beta[m])
         head[i] = h
-        c = start[i]
         for m in range(start[i], start[i + 1]):
-            if rest[m] - h > floor:
-                j = ci[m]
-                gwx[c], gwy[c] = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
-                scale[c] = math.exp(rest[m] - h)
-                c += 1
-        count[i] = c - start[i]
-    for q in range(len(ppi)):
+            rest = base[m] + beta[m] - h
+            scale[m] = math.exp(rest) if beta[m] > _NEG and rest > floor else 0.0
+    for q in range(len(pci)):
+        out[q] = _NEG
         if pla[q] <= _NEG:
             continue
-        a0, a1 = ppi[q], pci[q]
-        if count[a1] == 0:
-            continue
-        vx, vy = xp[a1, 0] - xpp[a0, 0], xp[a1, 1] - xpp[a0, 1]
-        f00, f01, f10, f11, cls = _frame(vx, vy, speed_edges, headings, slopes)
-        prob = accel_prob[cls]
+        lo, o = start[pci[q]], row[q]
         acc = 0.0
-        for r in range(start[a1], start[a1] + count[a1]):
-            u, w = _accel_bin(f00, f01, f10, f11, gwx[r] - vx, gwy[r] - vy, n_acc, bin_, reach)
-            acc += prob[u, w] * scale[r]
+        for r in range(row[q + 1] - o):
+            acc += val[o + r] * scale[lo + r]
         if acc > 0.0:
-            out[q] = math.log(acc) + head[a1]
+            out[q] = math.log(acc) + head[pci[q]]
 
 
 @njit(cache=True, nogil=True)
 def beam_smooth(
-    xy, lp, pi, ci, la, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
+    xy, lp, pi, ci, la, lengths, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
 ):
-    """Smoothed log marginals of every step of a beam's stored forward messages: one backward
-    pass over the kept pairs.
+    """Smoothed log marginals of the first ``L`` steps given those ``L`` steps, for every ``L`` in
+    ``lengths``, from a beam's stored forward messages: one backward pass over the kept pairs per
+    prefix. The acceleration densities between the kept pairs of consecutive steps are worked out
+    once for all the prefixes.
 
     Parameters
     ----------
@@ -431,43 +539,77 @@ def beam_smooth(
     lp : (B, T, K) float64; their log likelihoods
     pi, ci, la : (B, T - 1, M) the kept pairs of steps 1..T-1 (see :func:`pair_start`), index
         order
+    lengths : (n,) int64, each in 2..T
     speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
         tables (:class:`MotionArrays`)
 
     Returns
     -------
-    (B, T, K) float64 normalised log marginals given all T steps (``_NEG`` for none)
+    (B, sum(lengths), K) float64 normalised log marginals: prefix ``i``'s steps are the rows from
+    ``sum(lengths[:i])`` on (``_NEG`` for none)
     """
     B, T, K = lp.shape
     M = pi.shape[2]
+    T_max = 0
+    for L in lengths:
+        if L < 2 or L > T:
+            raise ValueError("prefix lengths must lie in 2..T")
+        T_max = max(T_max, L)
     tables = (speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob)
     # a term whose rest lies this far below its group's largest stays _NEGLIGIBLE below the sum
     # whatever the accelerations
     floor = _NEGLIGIBLE - (accel_table.max() - accel_table.min())
-    out = np.empty((B, T, K))
+    out = np.empty((B, lengths.sum(), K))
     beta = np.empty(M)
     prev = np.empty(M)
     joint = np.empty(M)
-    start = np.empty(K + 1, np.int64)
-    work = (np.empty(M), np.empty(M), np.empty(M), np.empty(M), np.empty(K), np.empty(K, np.int64))
+    scale, head, idx = np.empty(M), np.empty(K), np.empty(M, np.int64)
+    # per step t in 2..T_max-1: the pairs of t grouped, their place and likelihood, the densities
+    start = np.zeros((T_max, K + 1), np.int64)
+    base = np.empty((T_max, M))
+    row = np.empty((T_max, M + 1), np.int64)
+    val = np.empty((T_max, M * K))
     for b in range(B):
-        for m in range(M):
-            beta[m] = 0.0 if la[b, T - 2, m] > _NEG else _NEG
-        for t in range(T - 1, 0, -1):
+        for t in range(2, T_max):
             s = t - 1  # the pairs (t-1, t)
-            for m in range(M):
-                joint[m] = la[b, s, m] + beta[m]
-            _marginal(joint, ci[b, s], K, out[b, t])
-            if t == 1:
-                _marginal(joint, pi[b, s], K, out[b, 0])
-                break
             n = 0
             while n < M and la[b, s, n] > _NEG:
                 n += 1
-            _group(pi[b, s], n, K, start)
-            _backward_step(
-                xy[b, t - 2], xy[b, t - 1], xy[b, t], pi[b, s - 1], ci[b, s - 1], la[b, s - 1],
-                ci[b, s], start, beta, lp[b, t], tables, floor, work, prev,
+            _group(pi[b, s], n, K, start[t])
+            xp, xc = xy[b, t - 1], xy[b, t]
+            for m in range(M):
+                i, j = pi[b, s, m], ci[b, s, m]
+                wx, wy = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
+                base[t, m] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[b, t, j]
+            _transitions(
+                xy[b, t - 2], xp, xc, pi[b, s - 1], ci[b, s - 1], la[b, s - 1], ci[b, s, :n],
+                start[t], tables, row[t], val[t], idx,
             )  # fmt: skip
-            beta[:] = prev
+        o = 0
+        for L in lengths:
+            for m in range(M):
+                beta[m] = 0.0 if la[b, L - 2, m] > _NEG else _NEG
+            for t in range(L - 1, 0, -1):
+                s = t - 1
+                for m in range(M):
+                    joint[m] = la[b, s, m] + beta[m]
+                _marginal(joint, ci[b, s], K, out[b, o + t])
+                if t == 1:
+                    _marginal(joint, pi[b, s], K, out[b, o])
+                    break
+                _backward_step(
+                    ci[b, s - 1],
+                    la[b, s - 1],
+                    start[t],
+                    base[t],
+                    beta,
+                    row[t],
+                    val[t],
+                    floor,
+                    scale,
+                    head,
+                    prev,
+                )
+                beta[:] = prev
+            o += L
     return out

@@ -161,17 +161,23 @@ class _Beam:
         """The first ``T`` steps' log likelihoods ``(B, T, K)`` (a view)."""
         return self.lp.upto(T)
 
-    def smooth(self, T: int) -> np.ndarray:
-        """Smoothed log marginals ``(B, T, K)`` of the first ``T`` steps given those ``T`` steps."""
-        if T == 1:
-            return self.marg[0][:, None]
-        m = self.m
-        pi, ci, la = (p.upto(T - 1) for p in self._pairs)
-        return _threaded(
-            beam_smooth, 5, self.points(T), self.likelihoods(T), pi, ci, la,
-            m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place,
-            m.accel_prob,
-        )  # fmt: skip
+    def smooth(self, lengths: list[int]) -> list[np.ndarray]:
+        """Smoothed log marginals ``(B, T, K)`` of the first ``T`` steps given those ``T`` steps,
+        for each ``T`` in ``lengths``."""
+        out: list[np.ndarray | None] = [self.marg[0][:, None] if T == 1 else None for T in lengths]
+        longer = [T for T in lengths if T > 1]
+        if longer:
+            m, T_max = self.m, max(longer)
+            pi, ci, la = (p.upto(T_max - 1) for p in self._pairs)
+            rows = _threaded(
+                beam_smooth, 5, self.points(T_max), self.likelihoods(T_max), pi, ci, la,
+                np.array(longer, np.int64), m.speed_edges, m.headings, m.heading_slopes, m.accel_table,
+                m.bin, m.reach, m.place, m.accel_prob,
+            )  # fmt: skip
+            ends = np.cumsum(longer)
+            parts = iter(np.split(rows, ends[:-1], axis=1))
+            out = [next(parts) if o is None else o for o in out]
+        return out  # type: ignore[return-value]
 
 
 def _vague_shift(pos: np.ndarray, vague: np.ndarray, gate: float = VAGUE_GATE) -> np.ndarray:
@@ -391,25 +397,35 @@ class CandidateFilter:
             track's step length per step) from the nearest informative step is put on the track
             of the informative steps around it.
         """
-        T = self.steps if T is None else int(T)
-        if not 1 <= T <= self.steps:
-            raise ValueError(f"can smooth 1..{self.steps} steps, not {T}")
-        xy = torch.from_numpy(self.cells.points(T)).float()
-        lp = torch.from_numpy(self.cells.likelihoods(T)).float()
-        w = torch.from_numpy(self.model_weights(T))[:, None, None]  # (B, 1, 1, n_models)
-        p = torch.zeros(xy.shape[:3], dtype=torch.float64)
-        fine = torch.zeros(xy.shape[0], T, 2, dtype=torch.float64)
-        for i, h in enumerate(self._models):
-            pi, fi = self._smooth_one(h, T, xy)
-            p += w[..., i] * pi
-            fine += w[..., i] * fi
-        cv = p.log().clamp(min=-1e300).float()
-        rw = [_random_walk(trans[:, : T - 1], lp) for trans in self._transitions()]
-        post = torch.stack([lp, *rw, cv], -1)
-        if self.vague_gate is not None:
-            shift = torch.from_numpy(_vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate))
-            xy, fine = xy + shift[:, :, None].float(), fine + shift
-        return xy, post.clamp(min=LOGP_FLOOR), fine.float()
+        return self.smooth_prefixes([self.steps if T is None else int(T)])[0]
+
+    def smooth_prefixes(self, lengths: list[int]) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """:meth:`smooth` of the first ``T`` steps for each ``T`` in ``lengths`` (as evaluation
+        runs every prefix): the same results, with the work the prefixes share done once."""
+        lengths = [int(T) for T in lengths]
+        for T in lengths:
+            if not 1 <= T <= self.steps:
+                raise ValueError(f"can smooth 1..{self.steps} steps, not {T}")
+        per_model = [self._smooth_one(h, lengths) for h in self._models]
+        out = []
+        for n, T in enumerate(lengths):
+            xy = torch.from_numpy(self.cells.points(T)).float()
+            lp = torch.from_numpy(self.cells.likelihoods(T)).float()
+            w = torch.from_numpy(self.model_weights(T))[:, None, None]  # (B, 1, 1, n_models)
+            p = torch.zeros(xy.shape[:3], dtype=torch.float64)
+            fine = torch.zeros(xy.shape[0], T, 2, dtype=torch.float64)
+            for i, one in enumerate(per_model):
+                pi, fi = one[n]
+                p += w[..., i] * pi
+                fine += w[..., i] * fi
+            cv = p.log().clamp(min=-1e300).float()
+            rw = [_random_walk(trans[:, : T - 1], lp) for trans in self._transitions()]
+            post = torch.stack([lp, *rw, cv], -1)
+            if self.vague_gate is not None:
+                shift = _vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate)
+                xy, fine = xy + torch.from_numpy(shift)[:, :, None].float(), fine + torch.from_numpy(shift)
+            out.append((xy, post.clamp(min=LOGP_FLOOR), fine.float()))
+        return out
 
     def _transitions(self) -> list[torch.Tensor]:
         """The random-walk transition weights ``(B, steps - 1, k, k)`` of every step scale, made
@@ -424,18 +440,25 @@ class CandidateFilter:
         assert self._trans is not None
         return self._trans
 
-    def _smooth_one(self, h: _Hypothesis, T: int, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _smooth_one(self, h: _Hypothesis, lengths: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """One motion model's smoothed cell marginals ``(B, T, k)`` and positions ``(B, T, 2)``
-        metres, float64."""
-        p = torch.softmax(torch.from_numpy(h.cells.smooth(T)), -1)
-        if h.fine is None:
-            return p, (p[..., None] * xy.double()).sum(2)
-        # The sub-cells are the conditional mean given the cells split at each step, which were
-        # chosen before the later steps were seen; the smoothed mass of the other cells (an alias
-        # the first fingerprint preferred, say) keeps its cell-level mean.
-        w = np.exp(h.fine.smooth(T))
-        sub = torch.from_numpy((w[..., None] * h.fine.points(T)).sum(2) * self.spacing)
-        inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
-        mass = (p * inside).sum(-1, keepdim=True)
-        rest = (p * (1 - inside))[..., None] * xy.double()
-        return p, mass * sub + rest.sum(2)
+        metres, float64, for each prefix length ``T`` in ``lengths``."""
+        cells = h.cells.smooth(lengths)
+        fines = h.fine.smooth(lengths) if h.fine is not None else None
+        out = []
+        for n, T in enumerate(lengths):
+            xy = torch.from_numpy(h.cells.points(T)).float().double()
+            p = torch.softmax(torch.from_numpy(cells[n]), -1)
+            if fines is None:
+                out.append((p, (p[..., None] * xy).sum(2)))
+                continue
+            # The sub-cells are the conditional mean given the cells split at each step, which
+            # were chosen before the later steps were seen; the smoothed mass of the other cells
+            # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
+            w = np.exp(fines[n])
+            sub = torch.from_numpy((w[..., None] * h.fine.points(T)).sum(2) * self.spacing)
+            inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
+            mass = (p * inside).sum(-1, keepdim=True)
+            rest = (p * (1 - inside))[..., None] * xy
+            out.append((p, mass * sub + rest.sum(2)))
+        return out

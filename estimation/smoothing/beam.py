@@ -525,6 +525,40 @@ def _backward_step(pci, pla, start, base, beta, row, val, floor, scale, head, ou
 
 
 @njit(cache=True, nogil=True)
+def _prepare_step(b, t, work, start, base, row, val):
+    """What the backward passes read at step t of sequence ``b``: the kept pairs ``(t-1, t)``
+    grouped by their candidate at t-1 (``start``), each one's place and likelihood at t
+    (``base``), and the densities from the kept pairs of t-1 (``row, val``, see
+    :func:`_transitions`)."""
+    xy, lp, pi, ci, la, place, tables, idx = work
+    M, K = pi.shape[2], lp.shape[2]
+    s = t - 1  # the pairs (t-1, t)
+    n = 0
+    while n < M and la[b, s, n] > _NEG:
+        n += 1
+    _group(pi[b, s], n, K, start)
+    xp, xc = xy[b, t - 1], xy[b, t]
+    for m in range(M):
+        i, j = pi[b, s, m], ci[b, s, m]
+        wx, wy = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
+        base[m] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[b, t, j]
+    _transitions(
+        xy[b, t - 2],
+        xp,
+        xc,
+        pi[b, s - 1],
+        ci[b, s - 1],
+        la[b, s - 1],
+        ci[b, s, :n],
+        start,
+        tables,
+        row,
+        val,
+        idx,
+    )
+
+
+@njit(cache=True, nogil=True)
 def beam_smooth(
     xy, lp, pi, ci, la, lengths, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
 ):
@@ -564,27 +598,20 @@ def beam_smooth(
     prev = np.empty(M)
     joint = np.empty(M)
     scale, head, idx = np.empty(M), np.empty(K), np.empty(M, np.int64)
-    # per step t in 2..T_max-1: the pairs of t grouped, their place and likelihood, the densities
-    start = np.zeros((T_max, K + 1), np.int64)
-    base = np.empty((T_max, M))
-    row = np.empty((T_max, M + 1), np.int64)
-    val = np.empty((T_max, M * K))
+    # per step t in 2..T_max-1: the pairs of t grouped, their place and likelihood, the densities;
+    # kept for every step where several prefixes share them, else made as the one pass needs them
+    # (scratch of one step, whatever the length)
+    shared = len(lengths) > 1
+    slots = T_max if shared else 1
+    start = np.zeros((slots, K + 1), np.int64)
+    base = np.empty((slots, M))
+    row = np.empty((slots, M + 1), np.int64)
+    val = np.empty((slots, M * K))
+    work = (xy, lp, pi, ci, la, place, tables, idx)
     for b in range(B):
-        for t in range(2, T_max):
-            s = t - 1  # the pairs (t-1, t)
-            n = 0
-            while n < M and la[b, s, n] > _NEG:
-                n += 1
-            _group(pi[b, s], n, K, start[t])
-            xp, xc = xy[b, t - 1], xy[b, t]
-            for m in range(M):
-                i, j = pi[b, s, m], ci[b, s, m]
-                wx, wy = xc[j, 0] - xp[i, 0], xc[j, 1] - xp[i, 1]
-                base[t, m] = _log_place(xc[j, 0], xc[j, 1], wx, wy, place) + lp[b, t, j]
-            _transitions(
-                xy[b, t - 2], xp, xc, pi[b, s - 1], ci[b, s - 1], la[b, s - 1], ci[b, s, :n],
-                start[t], tables, row[t], val[t], idx,
-            )  # fmt: skip
+        if shared:
+            for t in range(2, T_max):
+                _prepare_step(b, t, work, start[t], base[t], row[t], val[t])
         o = 0
         for L in lengths:
             for m in range(M):
@@ -597,14 +624,17 @@ def beam_smooth(
                 if t == 1:
                     _marginal(joint, pi[b, s], K, out[b, o])
                     break
+                u = t if shared else 0
+                if not shared:
+                    _prepare_step(b, t, work, start[u], base[u], row[u], val[u])
                 _backward_step(
                     ci[b, s - 1],
                     la[b, s - 1],
-                    start[t],
-                    base[t],
+                    start[u],
+                    base[u],
                     beta,
-                    row[t],
-                    val[t],
+                    row[u],
+                    val[u],
                     floor,
                     scale,
                     head,

@@ -365,6 +365,21 @@ def test_untrained_network_is_the_velocity_smoother_and_translation_invariant():
     assert torch.allclose(net(xy + shift, post), out + shift, atol=1e-3)
 
 
+def test_training_drops_no_attention_weights():
+    """Dropout stays on the residual and feed-forward paths, not on the attention weights (whose
+    dropout keeps training's attention from running fused)."""
+    torch.manual_seed(0)
+    net = CandidateTransformer(search=20, k=6, d=16, ff=32, dropout=0.5).train()
+    h = torch.randn(3, 30, 16)
+    for layer in net.encoder.layers:
+        attn = layer.self_attn
+        trained = attn(h, h, h, need_weights=False)[0]
+        assert torch.allclose(trained, attn.eval()(h, h, h, need_weights=False)[0], atol=1e-6)
+        attn.train()
+    # the feed-forward path still drops: two training passes differ
+    assert not torch.equal(net.encoder(h), net.encoder(h))
+
+
 def test_match_cv_is_the_untrained_network_and_beats_the_per_step_match():
     va = toy_sequence_set(64, 6, seed=2)
     bits = noisy_bits(va, 12.0, torch.Generator().manual_seed(3))  # noisy enough for aliases

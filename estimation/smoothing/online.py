@@ -447,7 +447,7 @@ class CandidateFilter:
         fines = h.fine.smooth(lengths) if h.fine is not None else None
         out = []
         for n, T in enumerate(lengths):
-            xy = torch.from_numpy(h.cells.points(T)).float().double()
+            xy = torch.from_numpy(h.cells.points(T)).float().double()  # as the network reads them
             p = torch.softmax(torch.from_numpy(cells[n]), -1)
             if fines is None:
                 out.append((p, (p[..., None] * xy).sum(2)))

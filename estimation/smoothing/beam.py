@@ -419,8 +419,8 @@ def pair_forward(
         # underflowed): with fewer than M above it, every message is computed in logs.
         h = -np.inf
         for j in range(K):
-            fast = _place_at(xc[b, j, 0], xc[b, j, 1], place)
-            weight[0, j], weight[1, j] = lp[b, j], lp[b, j] + fast
+            # lp alone, and with the place term of a fast user (see _log_place)
+            weight[0, j], weight[1, j] = lp[b, j], lp[b, j] + _place_at(xc[b, j, 0], xc[b, j, 1], place)
             h = max(h, weight[0, j], weight[1, j])
         for j in range(K):
             weight[0, j], weight[1, j] = math.exp(weight[0, j] - h), math.exp(weight[1, j] - h)
@@ -438,15 +438,8 @@ def pair_forward(
             for i in range(Kp):
                 for j in range(K):
                     d = dense[i, j]
-                    fast = wx[i, j] * wx[i, j] + wy[i, j] * wy[i, j] > speed2
-                    dense[i, j] = (
-                        math.log(d)
-                        + ref
-                        + lp[b, j]
-                        + (_place_at(xc[b, j, 0], xc[b, j, 1], place) if fast else 0.0)
-                        if d > 0
-                        else _NEG
-                    )
+                    place_ij = _log_place(xc[b, j, 0], xc[b, j, 1], wx[i, j], wy[i, j], place)
+                    dense[i, j] = math.log(d) + ref + lp[b, j] + place_ij if d > 0 else _NEG
             _keep_best(dense, M, npi[b], nci[b], nla[b])
         _marginal(nla[b], nci[b], K, marg[b])
     return npi, nci, nla, marg
@@ -466,15 +459,15 @@ def _group(pi, n, Kp, start):
 
 
 @njit(cache=True, nogil=True)
-def _transitions(xpp, xp, xc, ppi, pci, pla, ci, start, tables, row, val, idx):
+def _transitions(xpp, xp, xc, ppi, pci, pla, ci, start, tables, row, val, idx, gwx, gwy):
     """The acceleration densities from each kept pair of step t-1 to the kept pairs of step t
     that continue it: pair ``q``'s are ``val[row[q]:row[q + 1]]``, one per pair of its candidate
     at t-1's group (``start``, see :func:`_group`), in the group's order. They do not depend on
-    the steps after t, so every prefix's backward pass reads them."""
+    the steps after t, so every prefix's backward pass reads them. ``idx, gwx, gwy``: scratch
+    of at least the step's number of pairs."""
     speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob = tables
     n_acc = accel_table.shape[1]
     flat_prob = accel_prob.reshape(accel_prob.shape[0], -1)
-    gwx, gwy = np.empty(len(ci)), np.empty(len(ci))
     for i in range(xp.shape[0]):
         for m in range(start[i], start[i + 1]):
             gwx[m], gwy[m] = xc[ci[m], 0] - xp[i, 0], xc[ci[m], 1] - xp[i, 1]
@@ -530,7 +523,7 @@ def _prepare_step(b, t, work, start, base, row, val):
     grouped by their candidate at t-1 (``start``), each one's place and likelihood at t
     (``base``), and the densities from the kept pairs of t-1 (``row, val``, see
     :func:`_transitions`)."""
-    xy, lp, pi, ci, la, place, tables, idx = work
+    xy, lp, pi, ci, la, place, tables, idx, gwx, gwy = work
     M, K = pi.shape[2], lp.shape[2]
     s = t - 1  # the pairs (t-1, t)
     n = 0
@@ -555,6 +548,8 @@ def _prepare_step(b, t, work, start, base, row, val):
         row,
         val,
         idx,
+        gwx,
+        gwy,
     )
 
 
@@ -607,7 +602,7 @@ def beam_smooth(
     base = np.empty((slots, M))
     row = np.empty((slots, M + 1), np.int64)
     val = np.empty((slots, M * K))
-    work = (xy, lp, pi, ci, la, place, tables, idx)
+    work = (xy, lp, pi, ci, la, place, tables, idx, np.empty(M), np.empty(M))
     for b in range(B):
         if shared:
             for t in range(2, T_max):

@@ -1,6 +1,7 @@
 """How a trained model tracks users whose motion is not ours, through the public library API.
 
     python benchmarks/foreign_motion.py RUN DATASET [METHOD ...] [--n 1000] [--length 7] [--noise 6]
+        [--vehicle-speeds 7.5,9.5] [--oracle]
 
 Others evaluate our models on trajectories of their own generators. This script makes two such
 generators that share nothing with :mod:`mmwsim.trajectories` but the free space:
@@ -31,6 +32,11 @@ and beside ``cell``: the error of the grid points the fingerprints were drawn at
 tells its grid point at best, so only a motion prior gets below it; our own vehicles drive on
 centre lines that run along grid lines and sit lower).
 METHOD names classical trackers to evaluate on the same draws too (``match-cv``, ``knn-kalman``).
+``--oracle`` adds the floor of every set our generator made (``events``, our vehicles at other
+speeds, our own test users): the oracle of that very generator
+(:meth:`estimation.oracle.Oracle.from_trajectories`; the foreign sets' generators made one kind
+each, so their oracles know it), so that a model's error on motion that is not ours reads against
+what any tracker could reach on it.
 """
 
 from __future__ import annotations
@@ -84,22 +90,21 @@ EVENT_HABITS = {
 }
 
 
-def _habit_walks(
-    ds, kind: str, n: int, length: int, seed: int, on_streets: bool, habits: dict | None = None
-) -> np.ndarray:
-    """Our generator's ``kind`` with ``habits`` (default :data:`EVENT_HABITS`) changed."""
+def _habit_walks(ds, kind: str, n: int, length: int, seed: int, on_streets: bool, habits: dict | None = None):
+    """Our generator's ``kind`` with ``habits`` (default :data:`EVENT_HABITS`) changed: its
+    ``Trajectories``, whose ``attrs`` say how they were made (the oracle of that generator reads
+    them)."""
     from mmwsim.trajectories import generate_for_dataset, motion_model
 
     model = motion_model(kind).replace(**(EVENT_HABITS[kind] if habits is None else habits))
-    t = generate_for_dataset(
+    return generate_for_dataset(
         ds, {kind: n}, length, seed, models={kind: model}, vehicles_on_streets=on_streets
     )
-    return t.positions
 
 
-def event_walks(ds, kind: str, n: int, length: int, seed: int) -> np.ndarray:
-    """``(n, length, 2)`` positions from our event model with other parameters (vehicles off the
-    street network)."""
+def event_walks(ds, kind: str, n: int, length: int, seed: int):
+    """Trajectories (positions ``(n, length, 2)``) of our event model with other parameters
+    (vehicles off the street network)."""
     return _habit_walks(ds, kind, n, length, seed, on_streets=False)
 
 
@@ -107,7 +112,7 @@ def lane_walks(ds, n: int, length: int, seed: int) -> np.ndarray:
     """``(n, length, 2)`` positions of vehicles on the street network with the ``events``
     habits, each ``U(1, 2.5)`` m right of the centre line (of its direction of travel; a
     stopped vehicle keeps its last direction)."""
-    centre = _habit_walks(ds, "vehicle", n, length, seed, on_streets=True)
+    centre = _habit_walks(ds, "vehicle", n, length, seed, on_streets=True).positions
     step = np.diff(centre, axis=1)
     step = np.concatenate([step[:, :1], step], axis=1)  # the first sample heads as the first step
     moving = np.linalg.norm(step, axis=-1) > 1e-6
@@ -126,9 +131,10 @@ def lane_walks(ds, n: int, length: int, seed: int) -> np.ndarray:
     return out
 
 
-def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float) -> np.ndarray:
-    """``(n, length, 2)`` positions of our own vehicles on the street network with the mean speed
-    ``mean_speed`` m/s (and the maximum moved by as much): our habits at other speeds."""
+def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float):
+    """Trajectories (positions ``(n, length, 2)``) of our own vehicles on the street network with
+    the mean speed ``mean_speed`` m/s (and the maximum moved by as much): our habits at other
+    speeds."""
     from mmwsim.trajectories import motion_model
 
     base = motion_model("vehicle")
@@ -161,6 +167,11 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S1,S2",
         help="add our own street vehicles at these mean speeds, m/s (e.g. 7.5,8.8,9.5)",
     )
+    ap.add_argument(
+        "--oracle",
+        action="store_true",
+        help="print the floor of every set our generator made (events, own at other speeds, own test/seen)",
+    )
     args = ap.parse_args(argv)
     try:
         speeds = [float(v) for v in args.vehicle_speeds.split(",") if v.strip()]
@@ -186,18 +197,32 @@ def main(argv: list[str] | None = None) -> int:
     )
     rng = np.random.default_rng(args.seed)
     sets: dict[str, dict[str, np.ndarray]] = {"smooth": {}, "events": {}}
+    made = {}  # (set, kind) -> how our generator made it: the oracle of that generator reads it
     for k in KINDS:
         sets["smooth"][k] = smooth_walks(fs, k, args.n, args.length, rng)
-        sets["events"][k] = event_walks(ds, k, args.n, args.length, args.seed + 1)
+        t = event_walks(ds, k, args.n, args.length, args.seed + 1)
+        sets["events"][k], made["events", k] = t.positions, t.attrs
     sets["lanes"] = {"vehicle": lane_walks(ds, args.n, args.length, args.seed + 2)}
     for v in speeds:
-        sets[f"own at {v:g} m/s"] = {"vehicle": shifted_walks(ds, args.n, args.length, args.seed + 3, v)}
-    own, _ = load_splits(args.dataset, ("test/seen",), dataset=ds)
+        t = shifted_walks(ds, args.n, args.length, args.seed + 3, v)
+        sets[f"own at {v:g} m/s"] = {"vehicle": t.positions}
+        made[f"own at {v:g} m/s", "vehicle"] = t.attrs
+    own, _ = load_splits(args.dataset, ("validation", "test/seen"), dataset=ds)
     seen = own["test/seen"]
     kinds = np.asarray(["static", "pedestrian", "hybrid", "vehicle"])[seen.kind]
     sets["own test/seen"] = {
         k: seen.positions[kinds == k][: args.n, : args.length].astype(np.float64) for k in KINDS
     }
+    floors = {}  # (set, kind) -> the oracle of the generator that made it
+    if args.oracle:
+        from estimation import Oracle, OracleMethod
+
+        ours = OracleMethod(Oracle.from_dataset(ds)).for_sigma(args.noise, own["validation"])
+        for k in KINDS:  # our own test users: the data set's generator, every kind in its proportions
+            floors["own test/seen", k] = ours
+        for key, attrs in made.items():
+            floors[key] = OracleMethod(Oracle.from_trajectories(ds, attrs))
+            floors[key].matcher = ours.matcher  # the same likelihood: built once
 
     others = []
     for name in args.methods:
@@ -221,10 +246,12 @@ def main(argv: list[str] | None = None) -> int:
                 f"  {gen:14s} {k:10s} {est.name}: {r.mean():.2f} ({np.median(r):.2f}, {np.quantile(r, 0.95):.2f})"
                 f"  [{time.perf_counter() - t0:.0f} s]  cell {cell.mean():.2f}"
             )
-            for m in others:
+            for m in others + ([floors[gen, k]] if (gen, k) in floors else []):
                 p2 = m.predict_lengths(b.bool(), [args.length])[args.length][0]
                 r2 = trajectory_rmse(p2, pos)
                 line += f"  {m.name}: {r2.mean():.2f} ({np.median(r2):.2f})"
+                if m is floors.get((gen, k)):
+                    line += f" -> {est.name} {r.mean() / r2.mean():.2f}x the floor"
             print(line, flush=True)
     return 0
 

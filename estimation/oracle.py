@@ -693,7 +693,6 @@ class Oracle:
             ``n_particles``, ``seed``, ``resolution`` of :class:`Oracle`.
         """
         from mmwsim.errors import MmwsimError
-        from mmwsim.geometry.freespace import scene_obstacles
         from mmwsim.trajectories import list_splits, read_trajectories
 
         from .adapter import open_dataset
@@ -704,27 +703,61 @@ class Oracle:
             if not names:
                 raise EstimationError(f"{ds.path}: the oracle needs the data set's generated trajectories")
             attrs = read_trajectories(ds.path, split or names[0]).attrs
+        except MmwsimError as e:
+            if isinstance(e, EstimationError):
+                raise
+            raise EstimationError(str(e)) from None
+        return cls.from_trajectories(ds, attrs, **options)
+
+    @classmethod
+    def from_trajectories(cls, dataset: Any, trajectories: Any, **options: Any) -> Oracle:
+        """The oracle of trajectories made by mmwsim's generator for ``dataset``, stored or not.
+
+        Trajectories of other habits than the data set's own (``generate_for_dataset(...,
+        models=...)``, e.g. faster pedestrians, or vehicles off the streets) have a floor of
+        their own: this oracle knows their generator as :meth:`from_dataset` knows the data
+        set's (``benchmarks/foreign_motion.py --oracle``).
+
+        Parameters
+        ----------
+        dataset : mmwsim.Dataset
+            The data set they were generated for: its grid, validity mask and scene.
+        trajectories : Trajectories or dict
+            The trajectories, or their ``attrs`` (what :func:`mmwsim.trajectories.generate`
+            records: motion models, counts per kind, bounds, rate, vehicles on streets).
+        **options
+            ``n_particles``, ``seed``, ``resolution`` of :class:`Oracle`.
+        """
+        from mmwsim.errors import MmwsimError
+        from mmwsim.geometry.freespace import scene_obstacles
+
+        attrs = trajectories if isinstance(trajectories, dict) else getattr(trajectories, "attrs", None)
+        if not isinstance(attrs, dict):
+            raise EstimationError("oracle: give trajectories made by mmwsim's generator, or their attrs")
+        try:
             made_for = attrs.get("dataset")
-            if made_for is not None and made_for != ds.content_hash:
-                raise EstimationError(f"{ds.path}: its trajectories were generated for another data set")
+            if made_for is not None and made_for != dataset.content_hash:
+                raise EstimationError(f"{dataset.path}: its trajectories were generated for another data set")
             try:
                 models = {k: MotionModel(**v) for k, v in attrs["models"].items()}
                 counts = {k: int(v) for k, v in attrs["counts"].items()}
-                bounds = np.asarray(attrs.get("bounds") or ds.grid.bounds, dtype=np.float64).reshape(2, 2)
+                area = attrs.get("bounds") or dataset.grid.bounds
+                bounds = np.asarray(area, dtype=np.float64).reshape(2, 2)
                 rate = float(attrs.get("rate_hz", 1.0))
             except (KeyError, TypeError, ValueError) as e:
                 raise EstimationError(
-                    f"{ds.path}: the trajectories do not say how they were generated ({e}); the oracle "
-                    "needs mmwsim's generator attributes"
+                    f"{dataset.path}: the trajectories do not say how they were generated ({e}); the "
+                    "oracle needs mmwsim's generator attributes"
                 ) from None
-            scene = ds.scene()
+            scene = dataset.scene()
             streets = None
             if attrs.get("vehicles_on_streets") and counts.get("vehicle", 0) > 0:
                 streets = StreetNetwork.from_scene(
                     scene, float(attrs.get("street_half_width", 4.0)), bounds=bounds
                 )
+            obstacles = scene_obstacles(scene)
             return cls(
-                ds.grid, ds.valid, scene_obstacles(scene), bounds, models, counts, streets, rate, **options
+                dataset.grid, dataset.valid, obstacles, bounds, models, counts, streets, rate, **options
             )
         except MmwsimError as e:
             if isinstance(e, EstimationError):

@@ -279,3 +279,47 @@ def test_oracle_of_a_data_set_reads_its_generator(tmp_path):
     assert np.isfinite(est).all() and oracle.dead == 0
     cells = trajectory_rmse(oracle.grid.xy[rows], test.positions[moving]).mean()
     assert trajectory_rmse(est, test.positions[moving]).mean() < 0.8 * cells
+
+
+def test_oracle_of_trajectories_knows_their_own_habits(tmp_path):
+    """Trajectories of other habits than the data set's (here pedestrians at 5 m/s, made with
+    ``generate(..., models=...)`` and never stored) get an oracle of their own generator, which
+    places them better than the oracle told the reference pedestrian's habits."""
+    from mmwsim.scene import load_scene
+    from mmwsim.trajectories.generate import generate
+
+    scene = load_scene("default")
+    grid = ReceiverGrid((0.0, 0.0), 4.0, (50, 50))
+    valid = ~shapely.intersects_xy(shapely.union_all(scene.footprints), *grid.positions()[:, :2].T)
+    fast = PEDESTRIAN.replace(mean_speed=5.0, max_speed=6.0, speed_change=0.5)
+    t = generate(
+        scene,
+        {"pedestrian": 24},
+        6,
+        seed=4,
+        models={"pedestrian": fast},
+        coverage=CoverageMask(grid, valid),
+        free_space_bounds=grid.bounds,
+    )
+    ds = _Dataset(tmp_path / "none.zarr", grid, valid, scene)
+    own = Oracle.from_trajectories(ds, t, n_particles=256, resolution=0.5)
+    assert own.kinds == ["pedestrian"] and own.motion["pedestrian"].model == fast
+    assert np.allclose(own.log_prior["pedestrian"], 0.0)
+    told = own.with_model("pedestrian", **{k: getattr(PEDESTRIAN, k) for k in ("mean_speed", "max_speed")})
+    rows = own.grid.rows(t.positions)
+    lik = np.where(np.arange(own.grid.size) == rows[..., None], 0.0, -30.0)  # each step's true cell
+    err = {
+        name: trajectory_rmse(o.smooth(lik, [6])[6], t.positions).mean()
+        for name, o in (("own", own), ("told", told))
+    }
+    assert err["own"] < 0.8 * err["told"], err
+    # the attrs alone serve as well; trajectories of another data set or generator are refused
+    assert Oracle.from_trajectories(ds, dict(t.attrs), n_particles=256, resolution=0.5).kinds == [
+        "pedestrian"
+    ]
+    with pytest.raises(EstimationError, match="another data set"):
+        Oracle.from_trajectories(ds, {**t.attrs, "dataset": "other"})
+    with pytest.raises(EstimationError, match="do not say how"):
+        Oracle.from_trajectories(ds, {k: v for k, v in t.attrs.items() if k != "models"})
+    with pytest.raises(EstimationError, match="made by mmwsim's generator"):
+        Oracle.from_trajectories(ds, np.zeros((2, 6, 2)))

@@ -4,9 +4,11 @@ Usage: python benchmarks/forecast_tn_match.py RUN DATASET [--t-obs 4] [--horizon
 
 Takes a ``tn-match`` run (trained for tracking or forecasting), tracks the first ``t_obs`` steps of
 test trajectories from fingerprints with fresh 6 dB noise and extrapolates ``horizon`` steps
-(:func:`estimation.extrapolate`, constant velocity). Prints, per split (seen area, held-out
-region), the tracking RMSE over the observed steps and the mean distance to the true position at
-each forecast step (metres) with its ratio to the tracking error, and the same forecast from the
+(:func:`estimation.extrapolate`, constant velocity), and as ``Estimator.predict`` forecasts: users
+faster than the place table's speed carried on along the lanes (:meth:`Estimator.forecast`).
+Prints, per split (seen area, held-out region), the tracking RMSE over the observed steps and the
+mean distance to the true position at each forecast step (metres) with its ratio to the tracking
+error and the mean per-trajectory RMSE over the forecast steps, and the same forecasts from the
 true last position and velocity: what the users' own changes of motion leave unpredictable.
 ``--oracle`` adds the floor on the same draws: the oracle's particle filter (the generator's motion
 model, the exact likelihood) tracking the observed steps and carrying its particles on
@@ -68,6 +70,8 @@ def main() -> None:
         for name, track in (("tn-match", tracked), ("true last position and velocity", truth)):
             pred = extrapolate(track.double(), args.horizon).numpy()
             _print_steps(f"forecast from {name}", pred, future, track_err)
+            lanes = est.forecast(track.double(), args.horizon).numpy()
+            _print_steps("  fast users along the lanes (predict's)", lanes, future, track_err)
         if args.oracle:
             from estimation.oracle import OracleMethod
 
@@ -83,7 +87,8 @@ def _print_steps(name: str, pred: np.ndarray, future: np.ndarray, track_err: flo
     """Mean distance at every forecast step, and its ratio to tn-match's tracking error."""
     dist = np.linalg.norm(pred - future, axis=-1).mean(0)
     steps = ", ".join(f"{h + 1} s {d:.2f} m ({d / track_err:.2f}x)" for h, d in enumerate(dist))
-    print(f"    {name}: {steps}")
+    rmse = np.sqrt(np.square(pred - future).sum(-1).mean(-1)).mean()
+    print(f"    {name}: {steps}; RMSE {rmse:.2f} m")
 
 
 if __name__ == "__main__":

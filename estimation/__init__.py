@@ -70,6 +70,7 @@ _EXPORTS = {
         "MixtureMotion",
         "MotionTable",
         "extrapolate",
+        "forecast_tracks",
         "kalman_forecast",
         "rts_smoother",
     ),

@@ -22,6 +22,7 @@ from .errors import EstimationError
 from .matching import FingerprintMatcher
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
+from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
 
@@ -220,6 +221,10 @@ class Estimator(nn.Module):
         Whether a grid-reading network's lanes (where it expects fast users) come from the
         street map of the data it is attached to, where that has one, instead of the place
         table measured on the training trajectories (default True; see :meth:`attach`).
+    lane_forecast : bool
+        Whether a grid-reading network trained for forecasting carries its fast users (vehicles)
+        on along the lanes its filter uses (:func:`~estimation.smoothing.forecast.forecast_tracks`)
+        when predicting, instead of at their last velocity as in training (default True).
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
@@ -228,6 +233,7 @@ class Estimator(nn.Module):
         self.matcher: FingerprintMatcher | None = None
         self.robust_motion = True
         self.street_lanes = True
+        self.lane_forecast = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
         self._pooled: tuple[bytes, tuple | None] | None = None  # (digest, speed-pooled copies)
@@ -461,12 +467,31 @@ class Estimator(nn.Module):
                 x = self.inputs(x)
             n = len(x[0]) if isinstance(x, tuple) else len(x)
             parts = [
-                positions(self(_rows(x, slice(a, a + PREDICT_CHUNK))))
+                self._predict_rows(_rows(x, slice(a, a + PREDICT_CHUNK)))
                 for a in range(0, max(n, 1), PREDICT_CHUNK)
             ]
-            return self.normaliser.to_metres(torch.cat(parts) if len(parts) != 1 else parts[0])
+            return torch.cat(parts) if len(parts) != 1 else parts[0]
         finally:
             self.train(was)
+
+    def _predict_rows(self, x: Any) -> torch.Tensor:
+        """:meth:`predict` of one chunk of inputs, metres."""
+        if self.lane_forecast and self.uses_grid and self.config.task == "forecasting":
+            return self.forecast(self.net.track(*x), self.config.horizon).float()
+        return self.normaliser.to_metres(positions(self(x)))
+
+    @torch.no_grad()
+    def forecast(self, tracked: torch.Tensor, horizon: int) -> torch.Tensor:
+        """Positions ``(B, horizon, 2)`` metres after tracked ones ``(B, T, 2)`` metres, as a
+        grid-reading network's :meth:`predict` forecasts: users faster than its place table's
+        speed carried on along the lanes its filter uses (street map or measured,
+        :func:`~estimation.smoothing.forecast.forecast_tracks`), the others at their last
+        velocity; all at their last velocity where the tables are not measured (or for other
+        networks)."""
+        fine = self._lane_motion()[1] if self.uses_grid else None
+        if fine is None or not bool(fine.fitted):
+            return extrapolate(tracked, horizon)
+        return forecast_tracks(tracked, horizon, fine, float(self.net.grid_step))
 
     def save(self, path: str | os.PathLike, extra: dict[str, Any] | None = None) -> None:
         save_checkpoint(

@@ -21,7 +21,7 @@ from estimation import (
 )
 from estimation.evaluation import NetworkMethod
 from estimation.models import CandidateTransformer
-from estimation.smoothing.forecast import extrapolate
+from estimation.smoothing.forecast import extrapolate, forecast_tracks
 from estimation.smoothing.hmm import (
     STEP_SIGMAS,
     candidate_features,
@@ -482,7 +482,12 @@ def test_tn_match_forecasts_through_its_tracks(tmp_path):
     xy, post, fine = est.inputs(bits[:, :4])
     with torch.no_grad():
         tracked = est.net.eval().track(xy, post, fine)
-    assert np.allclose(pred, extrapolate(tracked, 2).numpy(), atol=1e-4)
+    # users faster than the place table's speed go on along the filter's lanes, the others at their
+    # last velocity, as in training
+    lanes = est._lane_motion()[1]
+    assert np.allclose(pred, forecast_tracks(tracked, 2, lanes, float(est.net.grid_step)).numpy(), atol=1e-4)
+    est.lane_forecast = False
+    assert np.allclose(est.predict(bits[:, :4]).numpy(), extrapolate(tracked, 2).numpy(), atol=1e-4)
     true = va.positions[:, 4:6]
     stand = tracked[:, -1:].expand(-1, 2, -1).numpy()
     assert trajectory_rmse(pred, true).mean() < trajectory_rmse(stand, true).mean()

@@ -1,7 +1,7 @@
 """Smoothing of per-step fingerprint matches: Kalman (one match per step) and hidden-Markov (many
 candidates per step), with the motion densities the hidden-Markov smoothers score steps by."""
 
-from .forecast import extrapolate
+from .forecast import carry, extrapolate, forecast_tracks
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
 from .kalman import kalman_forecast, rts_smoother
 from .motion import MixtureMotion, MotionTable, snap_to_lattice
@@ -12,8 +12,10 @@ __all__ = [
     "MixtureMotion",
     "MotionTable",
     "candidate_features",
+    "carry",
     "cell_mean",
     "extrapolate",
+    "forecast_tracks",
     "kalman_forecast",
     "motion_posterior",
     "rts_smoother",

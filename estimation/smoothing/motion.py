@@ -485,6 +485,40 @@ class MotionTable(nn.Module):
         return self.log_accel_table[cls, self._acc_index(along), self._acc_index(across)]
 
     @torch.no_grad()
+    def sample_accel(self, v: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Accelerations ``(..., 2)`` drawn from the table after displacements ``v (..., 2)``: bin
+        centres chosen by the inverse distribution function of the uniform numbers ``u (...)`` in
+        ``[0, 1)`` (the same ``u`` and ``v`` draw the same acceleration), turned from the table's
+        frame back to the plane's. Edge bins stand for everything beyond them, and are drawn at
+        their centres."""
+        v = v.double()
+        _, _, cls = self._classify(v, torch.zeros_like(v))
+        table = self.log_accel_table.double()
+        n_class, n_acc = table.shape[:2]
+        cdf = torch.softmax(table.reshape(n_class, -1), dim=-1).cumsum(-1)
+        cdf[:, -1] = 1.0
+        # every class's distribution function, class c shifted to [c, c + 1]: one sorted array,
+        # searched once for all draws instead of gathering a row per draw
+        flat = (cdf + torch.arange(n_class, dtype=torch.float64)[:, None]).reshape(-1)
+        k = torch.searchsorted(flat, cls + u.double().clamp(0.0, 1.0 - 1e-12)) - cls * n_acc * n_acc
+        k = k.clamp(0, n_acc * n_acc - 1)
+        # bin centres symmetric about zero, so that the middle one is exactly no acceleration
+        centre = (torch.arange(n_acc, dtype=torch.float64) - (n_acc - 1) / 2) * self.bin
+        first, second = centre[k // n_acc], centre[k % n_acc]  # along / across, or the lattice frame's x / y
+        # the frame's unit vectors in the plane: the table reads a as (a . e1, a . e2)
+        e1, e2 = self._frame(v)
+        return first[..., None] * e1 + second[..., None] * e2
+
+    def _frame(self, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The unit vectors ``(..., 2)`` along which :meth:`_classify` reads an acceleration's two
+        components after displacement ``v``: it reads them linearly, so the plane's unit vectors
+        give them."""
+        one, zero = torch.ones_like(v[..., 0]), torch.zeros_like(v[..., 0])
+        first_x, second_x, _ = self._classify(v, torch.stack([one, zero], -1))
+        first_y, second_y, _ = self._classify(v, torch.stack([zero, one], -1))
+        return torch.stack([first_x, first_y], -1), torch.stack([second_x, second_y], -1)
+
+    @torch.no_grad()
     def fit(
         self,
         positions: np.ndarray,

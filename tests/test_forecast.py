@@ -1,0 +1,104 @@
+"""Forecasts carried through the motion table (estimation.smoothing.forecast): drawn accelerations
+follow the table in either frame, vehicles follow their lanes round a corner where the constant
+velocity forecast leaves them, steady users are carried on exactly, and a user's forecast is its
+own whatever its batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from estimation.smoothing.forecast import carry, extrapolate, forecast_tracks
+from estimation.smoothing.motion import MotionTable, snap_to_lattice
+
+SPEED = 6.0  # grid units per step: above the place tables' speed (5)
+
+
+def _l_drives(n: int, length: int, seed: int) -> np.ndarray:
+    """``(n, length, 2)`` vehicles at SPEED along an L: east along y = 10 to the corner (40, 10),
+    then north along x = 40, each reaching the corner at one of the first seven steps."""
+    k = np.random.default_rng(seed).integers(0, 7, n)[:, None]
+    s = 40.0 - SPEED * k + SPEED * np.arange(length)
+    east = np.stack([s, np.full_like(s, 10.0)], -1)
+    north = np.stack([np.full_like(s, 40.0), 10.0 + (s - 40.0)], -1)
+    return np.where((s <= 40.0)[..., None], east, north)
+
+
+def _lane_table() -> MotionTable:
+    """A lattice-frame table measured on the L drives, with the L as its lanes in an area of 200 x
+    200 cells that users visit (lanes are a small part of a city)."""
+    table = MotionTable.lattice().fit(_l_drives(400, 8, 0))
+    lines = np.array([[[0.0, 10.0], [40.0, 10.0]], [[40.0, 10.0], [40.0, 60.0]]])
+    return table.fit_place_lines(lines, np.array([-0.5, -0.5]), 1.0, (61, 61), visited=200 * 200, speed=5.0)
+
+
+@pytest.mark.parametrize(
+    "table", [MotionTable(), MotionTable.lattice()], ids=["motion frame", "lattice frame"]
+)
+def test_drawn_accelerations_follow_the_table_in_either_frame(table):
+    rng = np.random.default_rng(0)
+    walks = np.cumsum(rng.normal(size=(400, 8, 2)) + np.array([2.0, 0.7]), axis=1)
+    table.fit(walks if int(table.headings) == 0 else snap_to_lattice(walks))
+    n_acc = table.log_accel_table.shape[1]
+    for v in ([2.0, 0.7], [-0.3, -2.5], [0.0, 0.0]):
+        vs = torch.tensor(v, dtype=torch.float64).expand(40000, 2)
+        u = torch.from_numpy(rng.random(40000))
+        a = table.sample_accel(vs, u)
+        # read back through the table's own frame and bins, every draw lands in a bin of its class
+        # with the class's probability
+        along, across, cls = table._classify(vs, a)
+        assert (cls == cls[0]).all()
+        k = table._acc_index(along + 1e-9) * n_acc + table._acc_index(across + 1e-9)
+        drawn = np.bincount(k.numpy(), minlength=n_acc * n_acc) / len(k)
+        p = torch.softmax(table.log_accel_table[cls[0]].double().reshape(-1), 0).numpy()
+        top = np.argsort(-p)[:20]  # the bins most draws fall in, each within 5 standard errors
+        assert (np.abs(drawn[top] - p[top]) < 5 * np.sqrt(p[top] / len(k))).all()
+        assert abs(drawn[top].sum() - p[top].sum()) < 0.01
+    # the same uniform numbers draw the same accelerations
+    assert torch.equal(table.sample_accel(vs, u), a)
+
+
+def test_vehicles_follow_their_lane_round_a_corner():
+    table = _lane_table()
+    # seen for four steps, reaching the corner at the first or second step after them
+    drives = _l_drives(64, 7, 1)
+    near = (drives[:, 3, 0] == 40.0 - SPEED) | (drives[:, 3, 0] == 40.0 - 2 * SPEED)
+    seen, future = torch.from_numpy(drives[near, :4]), drives[near, 4:]
+    assert near.sum() >= 8
+    carried = carry(table, seen[:, -2], seen[:, -1], 3).numpy()
+    straight = extrapolate(seen, 3).numpy()
+    err = lambda p: np.linalg.norm(p - future, axis=-1).max(0)  # noqa: E731
+    assert (err(carried) < 0.5).all(), err(carried)  # every one of them turns with its lane
+    assert (err(straight)[1:] > 5.0).all()  # where the constant-velocity forecast goes on east
+
+
+def test_steady_users_are_carried_on_and_forecasts_do_not_depend_on_the_batch():
+    table = _lane_table()
+    # on the straight part, far from the corner: the constant-velocity forecast
+    seen = torch.tensor([[[2.0, 10.0], [8.0, 10.0]], [[5.0, 10.0], [11.0, 10.0]]], dtype=torch.float64)
+    carried = carry(table, seen[:, 0], seen[:, 1], 2)
+    assert torch.allclose(carried, extrapolate(seen, 2), atol=1e-3)
+    # a batch's forecasts are each user's alone
+    drives = torch.from_numpy(_l_drives(16, 4, 2))
+    batch = carry(table, drives[:, -2], drives[:, -1], 3)
+    for i in (0, 7, 15):
+        assert torch.equal(carry(table, drives[i : i + 1, -2], drives[i : i + 1, -1], 3)[0], batch[i])
+
+
+def test_only_fast_users_of_a_table_with_lanes_are_carried():
+    table = _lane_table()
+    spacing = 2.0  # metres per grid unit
+    drives = torch.from_numpy(_l_drives(8, 4, 3)) * spacing
+    slow = (
+        torch.stack([torch.arange(4.0)[:, None].expand(4, 2) * 1.2 + 30.0] * 3) * spacing
+    )  # 1.7 units per step
+    tracked = torch.cat([drives, slow]).float()
+    out = forecast_tracks(tracked, 3, table, spacing)
+    assert out.dtype == tracked.dtype and out.shape == (11, 3, 2)
+    expect = carry(table, tracked[:8, -2].double() / spacing, tracked[:8, -1].double() / spacing, 3) * spacing
+    assert torch.allclose(out[:8], expect.float())
+    assert torch.equal(out[8:], extrapolate(tracked[8:], 3))
+    # no lanes, or no velocity to carry: the constant-velocity forecast for all
+    assert torch.equal(forecast_tracks(tracked, 3, MotionTable.lattice(), spacing), extrapolate(tracked, 3))
+    assert torch.equal(forecast_tracks(tracked[:, -1:], 2, table, spacing), extrapolate(tracked[:, -1:], 2))

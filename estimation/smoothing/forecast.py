@@ -18,7 +18,12 @@ users who drive on rather than between them and the few who stop or turn.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
+
+if TYPE_CHECKING:
+    from .motion import MotionTable
 
 __all__ = ["carry", "extrapolate", "forecast_tracks"]
 
@@ -64,7 +69,7 @@ def _geometric_median(x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def carry(
-    table, prev: torch.Tensor, last: torch.Tensor, horizon: int, particles: int = CARRY_PARTICLES
+    table: MotionTable, prev: torch.Tensor, last: torch.Tensor, horizon: int, particles: int = CARRY_PARTICLES
 ) -> torch.Tensor:
     """Where users go after positions ``prev`` and ``last``, by the motion table.
 
@@ -113,7 +118,7 @@ def carry(
     return torch.stack(out, 1) if out else torch.zeros(B, 0, 2, dtype=torch.float64)
 
 
-def forecast_tracks(tracked: torch.Tensor, horizon: int, table, spacing: float) -> torch.Tensor:
+def forecast_tracks(tracked: torch.Tensor, horizon: int, table: MotionTable, spacing: float) -> torch.Tensor:
     """The forecast of tracked users: :func:`carry` through ``table`` for users faster than its
     place table's speed, :func:`extrapolate` for the others (and for all where the table has no
     place table, or only one step was tracked).

@@ -224,11 +224,7 @@ def main(argv: list[str] | None = None) -> int:
             floors[key] = OracleMethod(Oracle.from_trajectories(ds, attrs))
             floors[key].matcher = ours.matcher  # the same likelihood: built once
 
-    others = []
-    for name in args.methods:
-        m = method(name)
-        grid = load_splits(args.dataset, ("validation",), dataset=ds)[0]["validation"]
-        others.append(m.for_sigma(args.noise, grid))
+    others = [method(name).for_sigma(args.noise, own["validation"]) for name in args.methods]
 
     print(
         f"{args.run}: {args.length} steps, {args.noise:g} dB, mean per-trajectory RMSE in metres (median, p95)"

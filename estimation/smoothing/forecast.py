@@ -74,7 +74,7 @@ def carry(
     """Where users go after positions ``prev`` and ``last``, by the motion table.
 
     Every user's particles start at its last displacement; each step draws an acceleration per
-    particle from the table (:meth:`MotionTable.sample_accel`), weighs the new position by the
+    particle from the table (:meth:`MotionTable.accel_sampler`), weighs the new position by the
     place table (:meth:`MotionTable.log_place_ratio`: lanes, for fast users) and resamples. The
     uniform numbers are the same for every user, so a user's forecast does not depend on the
     others in its batch, and the same inputs give the same bytes.
@@ -105,9 +105,10 @@ def carry(
     spokes = (torch.arange(n, dtype=torch.float64) + 0.5) / n  # systematic resampling
     v = (last - prev)[:, None].expand(B, n, 2)
     x = last[:, None].expand(B, n, 2)
+    draw = table.accel_sampler()
     out = []
     for h in range(int(horizon)):
-        v = v + table.sample_accel(v, draws[h].expand(B, n))
+        v = v + draw(v, draws[h].expand(B, n))
         # float noise must not take a user moving along an axis into the next quarter's frame
         v = torch.where(v.abs() < 1e-9, 0.0, v)
         x = x + v

@@ -1,6 +1,7 @@
 """How far ahead tn-match's tracks carry: forecast error 1, 2 and 3 s past the last fingerprint.
 
 Usage: python benchmarks/forecast_tn_match.py RUN DATASET [--t-obs 4] [--horizon 3] [--max 1000] [--oracle]
+       [--speed-spread 0.1]
 
 Takes a ``tn-match`` run (trained for tracking or forecasting), tracks the first ``t_obs`` steps of
 test trajectories from fingerprints with fresh 6 dB noise and extrapolates ``horizon`` steps
@@ -13,6 +14,8 @@ true last position and velocity: what the users' own changes of motion leave unp
 ``--oracle`` adds the floor on the same draws: the oracle's particle filter (the generator's motion
 model, the exact likelihood) tracking the observed steps and carrying its particles on
 (:class:`estimation.oracle.OracleMethod`, forecasting), with its own tracking error.
+``--speed-spread S`` adds the oracle that reads each user's speeds from its fingerprints, knowing
+them only to within +-S (:meth:`estimation.oracle.Oracle.with_speed_spread`, particles x4).
 """
 
 from __future__ import annotations
@@ -34,6 +37,11 @@ def main() -> None:
     ap.add_argument("--horizon", type=int, default=3)
     ap.add_argument(
         "--oracle", action="store_true", help="also the oracle's forecast (seconds per trajectory)"
+    )
+    ap.add_argument(
+        "--speed-spread",
+        type=float,
+        help="also the oracle knowing the speeds only to within +-S (with --oracle)",
     )
     args = ap.parse_args()
     torch.set_num_threads(2)
@@ -73,14 +81,24 @@ def main() -> None:
             lanes = est.forecast(track.double(), args.horizon).numpy()
             _print_steps("  fast users along the lanes (predict's)", lanes, future, track_err)
         if args.oracle:
-            from estimation.oracle import OracleMethod
+            from estimation.oracle import ORACLE_PARTICLES, OracleMethod
 
-            t0 = time.perf_counter()
             m = OracleMethod(args.dataset).for_sigma(args.sigma, sets["validation"])
-            both = m.oracle.track(bits, m.matcher, [args.t_obs], horizon=args.horizon)[args.t_obs]
-            own = trajectory_rmse(both[:, : args.t_obs], true[:, : args.t_obs]).mean()
-            print(f"    oracle: tracking RMSE {own:.2f} m ({time.perf_counter() - t0:.1f} s)")
-            _print_steps("oracle forecast (the floor)", both[:, args.t_obs :], future, track_err)
+            oracles = [("oracle", m.oracle)]
+            if args.speed_spread:
+                x4 = m.oracle.with_particles({k: 4 * n for k, n in ORACLE_PARTICLES.items()})
+                oracles.append(
+                    (
+                        f"oracle reading speeds +-{args.speed_spread:g}",
+                        x4.with_speed_spread(args.speed_spread),
+                    )
+                )
+            for name, oracle in oracles:
+                t0 = time.perf_counter()
+                both = oracle.track(bits, m.matcher, [args.t_obs], horizon=args.horizon)[args.t_obs]
+                own = trajectory_rmse(both[:, : args.t_obs], true[:, : args.t_obs]).mean()
+                print(f"    {name}: tracking RMSE {own:.2f} m ({time.perf_counter() - t0:.1f} s)")
+                _print_steps(f"{name} forecast", both[:, args.t_obs :], future, track_err)
 
 
 def _print_steps(name: str, pred: np.ndarray, future: np.ndarray, track_err: float) -> None:

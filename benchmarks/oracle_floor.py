@@ -1,8 +1,8 @@
 """The oracle floor beside the trackers, on the same noise draws.
 
 Usage: python benchmarks/oracle_floor.py DATASET [RUN] [--max 1000] [--sigma 6] [--length 7]
-       [--convergence 0.25,1,4] [--misspecify vehicle.mean_speed=8.35,8.4] [--splits test/seen]
-       [--threads 1]
+       [--convergence 0.25,1,4] [--misspecify vehicle.mean_speed=8.35,8.4]
+       [--speed-spread 0.05,0.1] [--spread-particles 4] [--splits test/seen] [--threads 1]
 
 The oracle (:mod:`estimation.oracle`) knows the generator's motion model and the exact fingerprint
 likelihood, so its error is the floor any tracker can reach on the data set's trajectories. The
@@ -13,7 +13,12 @@ method's prediction time. ``--convergence F1,F2,...`` adds the oracle with its d
 counts scaled by each factor (same draws), to show how far Monte-Carlo error still moves it.
 ``--misspecify KIND.FIELD=V1,V2`` (repeatable) adds the oracle with one field of one kind's motion
 model set to each value (:meth:`estimation.oracle.Oracle.with_model`): how much of the floor rests
-on knowing the generator's constants exactly.
+on knowing the generator's constants exactly. ``--speed-spread S1,S2`` adds the oracle that knows
+every moving kind's speeds only to within +-S (:meth:`estimation.oracle.Oracle.with_speed_spread`:
+each particle scales its kind's speeds by its own factor, so the filter reads each user's speeds
+from its fingerprints): the floor of a tracker that knows how the generator moves users but not
+at which speeds. Its particles spread over one more dimension, so ``--spread-particles F`` scales
+their default counts by ``F`` (compare with 1 to see the Monte-Carlo error).
 """
 
 from __future__ import annotations
@@ -43,6 +48,16 @@ def main() -> None:
         default=[],
         metavar="KIND.FIELD=V1,V2",
         help="add the oracle with a motion model field changed to each value (repeatable)",
+    )
+    ap.add_argument(
+        "--speed-spread",
+        help="add the oracle knowing every kind's speeds only to within +-S, e.g. 0.05,0.1",
+    )
+    ap.add_argument(
+        "--spread-particles",
+        type=float,
+        default=1.0,
+        help="factor on the particle counts of the --speed-spread oracles (default 1)",
     )
     ap.add_argument("--splits", nargs="+", default=["test/seen", "test/holdout"], help="test splits")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
@@ -77,6 +92,16 @@ def main() -> None:
         except EstimationError as e:
             ap.error(str(e))
         m.name = f"oracle {kind} {field} {value:g}"
+        methods.append(m)
+    for spread in [float(v) for v in args.speed_spread.split(",")] if args.speed_spread else []:
+        try:
+            counts = {k: max(1, round(n * args.spread_particles)) for k, n in ORACLE_PARTICLES.items()}
+            m = OracleMethod(oracle.oracle.with_particles(counts).with_speed_spread(spread))
+        except EstimationError as e:
+            ap.error(str(e))
+        m.name = f"oracle speeds +-{spread:g}" + (
+            f" x{args.spread_particles:g}" if args.spread_particles != 1 else ""
+        )
         methods.append(m)
     methods += [method("knn-kalman", fit_length=args.length), method("match-cv")]
     if args.run:

@@ -19,8 +19,9 @@ report the mean per-trajectory RMSE, whose exact minimiser differs from the post
 by the spread of the squared errors within a trajectory; the difference is far below the gaps
 between methods.) It is evaluated as the ``oracle`` method (:class:`OracleMethod`), on the same
 noise draws as every other method. The floor includes knowing the generator's constants exactly,
-which no tracker is told; :meth:`Oracle.with_model` changes one of them to measure what that
-knowledge is worth (for the vehicles' speeds, nearly all of their floor: docs/estimation.md).
+which no tracker is told; :meth:`Oracle.with_model` changes one of them (an oracle told it wrong),
+and :meth:`Oracle.with_speed_spread` makes the oracle read every user's speeds from its fingerprints
+instead of knowing them, to measure what that knowledge is worth (docs/estimation.md).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import copy
 import math
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -228,9 +230,17 @@ def _logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
 
 
 def _speed_step(
-    model: MotionModel, dt: float, speed: np.ndarray, restart: np.ndarray, rng: np.random.Generator
+    model: MotionModel,
+    dt: float,
+    speed: np.ndarray,
+    restart: np.ndarray,
+    rng: np.random.Generator,
+    scale: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One step of the generator's speed process (``generate._speed_process``) for every particle.
+
+    ``scale (P,)``, where given, multiplies each particle's speeds (restart speed, speed step and
+    limits): a user whose speeds the filter reads instead of knowing (:meth:`Oracle.with_speed_spread`).
 
     Returns
     -------
@@ -248,16 +258,27 @@ def _speed_step(
     )
     # After a stop the user restarts at the mean speed; a speed change always changes the speed,
     # its sign forced where the other would leave the speed range.
-    speed = np.where(restart, model.mean_speed, speed)
-    dv = model.speed_change * dt
+    f = 1.0 if scale is None else scale
+    speed = np.where(restart, model.mean_speed * f, speed)
+    dv = model.speed_change * dt * f
     s = np.where(
-        speed + dv > model.max_speed + 1e-12,
+        speed + dv > model.max_speed * f + 1e-12,
         -1.0,
-        np.where(speed - dv < model.speed_floor - 1e-12, 1.0, sign),
+        np.where(speed - dv < model.speed_floor * f - 1e-12, 1.0, sign),
     )
     speed = np.where(events == SPEED, speed + s * dv, speed)
     step = np.where(events == STOP, 0.0, speed * dt)
     return events, speed, step, sign
+
+
+def _speed_scales(spread: float, P: int, rng: np.random.Generator) -> np.ndarray | None:
+    """Every particle's factor on its kind's speeds, uniform in ``[1 - spread, 1 + spread]``
+    (None, and no draw, where the speeds are known: ``spread`` 0)."""
+    return None if spread == 0 else 1.0 + spread * (2.0 * rng.random(P) - 1.0)
+
+
+def _start_speeds(model: MotionModel, scale: np.ndarray | None, P: int) -> np.ndarray:
+    return np.full(P, model.mean_speed) if scale is None else model.mean_speed * scale
 
 
 def _sample_rows(logp: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -283,6 +304,7 @@ class _State:
     prev: np.ndarray | None = None  # (P,) int64 node the vehicle comes from (streets)
     cur: np.ndarray | None = None  # (P,) int64 node it drives to (streets)
     off: np.ndarray | None = None  # (P,) metres driven from ``prev`` (streets)
+    scale: np.ndarray | None = None  # (P,) factor on every speed of the kind (speed spread)
 
     def take(self, idx: np.ndarray) -> _State:
         return _State(*(None if v is None else v[idx] for v in self.__dict__.values()))
@@ -291,10 +313,10 @@ class _State:
 class _FreeMotion:
     """The generator's free motion (``generate._attempt_free``) as a particle transition."""
 
-    def __init__(self, model: MotionModel, space: _Space, dt: float):
-        self.model, self.space, self.dt = model, space, dt
+    def __init__(self, model: MotionModel, space: _Space, dt: float, spread: float = 0.0):
+        self.model, self.space, self.dt, self.spread = model, space, dt, spread
         # Segment pieces for the fast clearance test: about 1 m each at the top speed.
-        self.pieces = max(1, math.ceil(model.max_speed * dt))
+        self.pieces = max(1, math.ceil(model.max_speed * (1.0 + spread) * dt))
 
     def start(self, lik: np.ndarray, n: int, rng: np.random.Generator) -> tuple[_State, np.ndarray]:
         """Particles of the first step and their log importance weights ``(B, n)``.
@@ -315,7 +337,14 @@ class _FreeMotion:
         # The first heading is drawn in the first step, as after a stop (a restart at the mean speed
         # in a uniformly random direction is exactly the generator's start).
         P = B * n
-        state = _State(flat, np.full(P, self.model.mean_speed), np.ones(P, dtype=bool), heading=np.zeros(P))
+        scale = _speed_scales(self.spread, P, rng)
+        state = _State(
+            flat,
+            _start_speeds(self.model, scale, P),
+            np.ones(P, dtype=bool),
+            heading=np.zeros(P),
+            scale=scale,
+        )
         return state, np.where(ok, logw, -np.inf)
 
     def _fresh_headings(
@@ -378,7 +407,7 @@ class _FreeMotion:
         log_correction : (P,) float, log importance weight of the proposal
         """
         m, dt, grid = self.model, self.dt, self.space.grid
-        events, speed, step, sign = _speed_step(m, dt, s.speed, s.restart, rng)
+        events, speed, step, sign = _speed_step(m, dt, s.speed, s.restart, rng, s.scale)
         P = len(speed)
         fresh = rng.uniform(0.0, 2.0 * np.pi, P)
         correction = np.zeros(P)
@@ -401,7 +430,7 @@ class _FreeMotion:
             good = self.space.segments_ok(s.pos[idx], cand, self.pieces, cand_rows)
             gi = idx[good]
             heading[gi], nxt[gi], rows[gi], bad[gi] = h[good], cand[good], cand_rows[good], False
-        return _State(nxt, speed, events == STOP, heading=heading), ~bad, rows, correction
+        return _State(nxt, speed, events == STOP, heading=heading, scale=s.scale), ~bad, rows, correction
 
 
 class _StreetMotion:
@@ -409,9 +438,17 @@ class _StreetMotion:
     start along the centre lines, a random onward street at every node (never straight back unless
     at a dead end), every chord checked against the free space."""
 
-    def __init__(self, model: MotionModel, space: _Space, dt: float, net: StreetNetwork, piece: float = 0.5):
-        self.model, self.space, self.dt, self.net = model, space, dt, net
-        self.pieces = max(1, math.ceil(model.max_speed * dt))
+    def __init__(
+        self,
+        model: MotionModel,
+        space: _Space,
+        dt: float,
+        net: StreetNetwork,
+        spread: float = 0.0,
+        piece: float = 0.5,
+    ):
+        self.model, self.space, self.dt, self.net, self.spread = model, space, dt, net, spread
+        self.pieces = max(1, math.ceil(model.max_speed * (1.0 + spread) * dt))
         # The first step's proposal picks a piece of centre line (about `piece` metres) by its
         # cell's likelihood times its length, then a point uniformly along it.
         n_p = np.maximum(np.ceil(net.edge_length / piece).astype(np.int64), 1)
@@ -463,8 +500,15 @@ class _StreetMotion:
         lx = np.take_along_axis(lik, np.maximum(rows, 0), axis=1)
         logw = lx - np.take_along_axis(lp, piece, axis=1) + log_s[:, None] - math.log(self.net.total_length)
         P = B * n
+        scale = _speed_scales(self.spread, P, rng)
         state = _State(
-            pos, np.full(P, self.model.mean_speed), np.zeros(P, dtype=bool), prev=prev, cur=cur, off=off
+            pos,
+            _start_speeds(self.model, scale, P),
+            np.zeros(P, dtype=bool),
+            prev=prev,
+            cur=cur,
+            off=off,
+            scale=scale,
         )
         return state, np.where(ok, logw, -np.inf)
 
@@ -473,7 +517,7 @@ class _StreetMotion:
     ) -> tuple[_State, np.ndarray, np.ndarray, float]:
         """Every particle one step along its route; as :meth:`_FreeMotion.step` (the transition
         itself is the proposal: no correction)."""
-        events, speed, step, _ = _speed_step(self.model, self.dt, s.speed, s.restart, rng)
+        events, speed, step, _ = _speed_step(self.model, self.dt, s.speed, s.restart, rng, s.scale)
         nodes, nbr = self.net.nodes, self.net.neighbours
         prev, cur, off = s.prev.copy(), s.cur.copy(), s.off + step
         length = np.linalg.norm(nodes[cur] - nodes[prev], axis=1)
@@ -498,7 +542,16 @@ class _StreetMotion:
         ok = self.space.in_bounds(pos) & (rows >= 0)
         rest = np.flatnonzero(~on_edge)
         ok[rest] = self.space.segments_ok(s.pos[rest], pos[rest], self.pieces, rows[rest])
-        return _State(pos, speed, events == STOP, prev=prev, cur=cur, off=off), ok, rows, 0.0
+        state = _State(pos, speed, events == STOP, prev=prev, cur=cur, off=off, scale=s.scale)
+        return state, ok, rows, 0.0
+
+
+def _motion_like(old: Any, model: MotionModel, spread: float) -> Any:
+    """A transition of ``old``'s class (free or on the streets) over its free space, with
+    ``model`` and ``spread``."""
+    if isinstance(old, _StreetMotion):
+        return _StreetMotion(model, old.space, old.dt, old.net, spread)
+    return _FreeMotion(model, old.space, old.dt, spread)
 
 
 def _resample(logw: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -672,10 +725,43 @@ class Oracle:
             raise EstimationError(f"oracle: {e}") from None
         other = self.with_particles(self.n_particles)
         other.motion = dict(self.motion)
-        if isinstance(old, _StreetMotion):
-            other.motion[kind] = _StreetMotion(model, old.space, old.dt, old.net)
-        else:
-            other.motion[kind] = _FreeMotion(model, old.space, old.dt)
+        other.motion[kind] = _motion_like(old, model, old.spread)
+        return other
+
+    def with_speed_spread(self, spread: float, kinds: Sequence[str] | None = None) -> Oracle:
+        """The same oracle knowing its users' speeds only to within ``+-spread`` (a share).
+
+        Every particle of a moving kind scales all of that kind's speeds (its start and restart
+        speed, its speed step and limits) by its own factor, drawn uniformly from
+        ``[1 - spread, 1 + spread]`` and kept along its path, so the filter reads each user's
+        speeds from its fingerprints as a tracker must, and knows the rest of the generator (stops,
+        turns, streets, that speeds change in steps). Its error against the floor says how much of
+        the floor is knowing the speeds a priori (``benchmarks/oracle_floor.py --speed-spread``).
+
+        Parameters
+        ----------
+        spread : float
+            Half-width of the factor's range, in ``[0, 0.5]``; 0 gives the oracle itself.
+        kinds : sequence of str, optional
+            Moving kinds whose speeds are read (default every moving kind).
+
+        Returns
+        -------
+        Oracle
+            A copy sharing this one's free space and streets; this one is unchanged.
+        """
+        if not (math.isfinite(spread) and 0.0 <= spread <= 0.5):
+            raise EstimationError(f"oracle: speed spread {spread!r} must be within [0, 0.5]")
+        chosen = list(self.motion) if kinds is None else list(kinds)
+        unknown = [k for k in chosen if k not in self.motion]
+        if unknown:
+            raise EstimationError(
+                f"oracle: no moving kind {', '.join(map(repr, unknown))} (has {', '.join(self.motion)})"
+            )
+        other = self.with_particles(self.n_particles)
+        other.motion = dict(self.motion)
+        for k in chosen:
+            other.motion[k] = _motion_like(self.motion[k], self.motion[k].model, float(spread))
         return other
 
     @classmethod

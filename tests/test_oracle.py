@@ -156,6 +156,37 @@ def test_a_misspecified_oracle_loses_the_floor(world):
         true.with_model("vehicle", mean_speed=6.0)
 
 
+def test_an_oracle_that_reads_the_speeds_finds_them(world):
+    te, va = world["test"], world["validation"]
+    true = world["oracle"]()
+    wrong = true.with_model("vehicle", mean_speed=3.5)
+    reads = wrong.with_speed_spread(0.2)  # its particles' mean speeds span 2.8 to 4.2 m/s
+    assert reads.motion["vehicle"].model.mean_speed == 3.5 and reads.motion["vehicle"].spread == 0.2
+    assert wrong.motion["vehicle"].spread == 0.0  # the original is untouched
+    assert reads.with_model("vehicle", speed_change=1.1).motion["vehicle"].spread == 0.2
+    rows = np.flatnonzero(te.kind == KINDS.index("vehicle"))
+    bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))[rows]
+    pred, err = {}, {}
+    for name, oracle in (
+        ("true", true),
+        ("wrong", wrong),
+        ("reads", reads),
+        ("none", true.with_speed_spread(0)),
+    ):
+        pred[name] = OracleMethod(oracle).for_sigma(6.0, va).predict_lengths(bits, [LENGTH])[LENGTH][0]
+        err[name] = trajectory_rmse(pred[name], te.positions[rows]).mean()
+    # told the vehicles' speed half a metre per second off, the oracle loses them; reading each
+    # vehicle's speed from its fingerprints, it finds most of the way back
+    assert err["reads"] < 0.8 * err["wrong"], err
+    assert err["reads"] < 1.2 * err["true"], err
+    assert np.array_equal(pred["none"], pred["true"])  # no spread: the oracle itself, bit for bit
+    for bad in (-0.1, 0.6, float("nan")):
+        with pytest.raises(EstimationError, match="speed spread"):
+            true.with_speed_spread(bad)
+    with pytest.raises(EstimationError, match="no moving kind 'static'"):
+        true.with_speed_spread(0.1, kinds=["static"])
+
+
 def test_prefix_estimates_see_only_their_steps_and_are_seeded(world):
     te = world["test"]
     bits = noisy_bits(te, 6.0, torch.Generator().manual_seed(3))

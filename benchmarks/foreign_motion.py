@@ -1,7 +1,7 @@
 """How a trained model tracks users whose motion is not ours, through the public library API.
 
     python benchmarks/foreign_motion.py RUN DATASET [METHOD ...] [--n 1000] [--length 7] [--noise 6]
-        [--vehicle-speeds 7.5,9.5] [--oracle]
+        [--vehicle-speeds 7.5,9.5] [--oracle [--speed-spread 0.1]]
 
 Others evaluate our models on trajectories of their own generators. This script makes two such
 generators that share nothing with :mod:`mmwsim.trajectories` but the free space:
@@ -36,7 +36,9 @@ METHOD names classical trackers to evaluate on the same draws too (``match-cv``,
 speeds, our own test users): the oracle of that very generator
 (:meth:`estimation.oracle.Oracle.from_trajectories`; the foreign sets' generators made one kind
 each, so their oracles know it), so that a model's error on motion that is not ours reads against
-what any tracker could reach on it.
+what any tracker could reach on it. ``--speed-spread S`` adds, beside each such floor, that oracle
+reading every user's speeds within +-S instead of knowing them
+(:meth:`estimation.oracle.Oracle.with_speed_spread`, 4x the particles).
 """
 
 from __future__ import annotations
@@ -172,7 +174,15 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="print the floor of every set our generator made (events, own at other speeds, own test/seen)",
     )
+    ap.add_argument(
+        "--speed-spread",
+        type=float,
+        metavar="S",
+        help="with --oracle, also the oracle of each set reading its users' speeds within +-S (particles x4)",
+    )
     args = ap.parse_args(argv)
+    if args.speed_spread is not None and not args.oracle:
+        ap.error("--speed-spread needs --oracle")
     try:
         speeds = [float(v) for v in args.vehicle_speeds.split(",") if v.strip()]
     except ValueError:
@@ -182,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from estimation import Estimator, method
+    from estimation import EstimationError, Estimator, method
     from estimation.adapter import load_splits
     from estimation.metrics import trajectory_rmse
     from mmwsim import Dataset, FreeSpace
@@ -214,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         k: seen.positions[kinds == k][: args.n, : args.length].astype(np.float64) for k in KINDS
     }
     floors = {}  # (set, kind) -> the oracle of the generator that made it
+    readers = {}  # (set, kind) -> that oracle reading the users' speeds (--speed-spread)
     if args.oracle:
         from estimation import Oracle, OracleMethod
 
@@ -223,6 +234,17 @@ def main(argv: list[str] | None = None) -> int:
         for key, attrs in made.items():
             floors[key] = OracleMethod(Oracle.from_trajectories(ds, attrs))
             floors[key].matcher = ours.matcher  # the same likelihood: built once
+        if args.speed_spread is not None:
+            from estimation import ORACLE_PARTICLES
+
+            x4 = {k: 4 * n for k, n in ORACLE_PARTICLES.items()}
+            for key, floor in list(floors.items()):
+                try:
+                    oracle = floor.oracle.with_particles(x4).with_speed_spread(args.speed_spread)
+                except EstimationError as e:
+                    ap.error(str(e))
+                readers[key] = OracleMethod(oracle)
+                readers[key].matcher, readers[key].name = ours.matcher, "reading speeds"
 
     others = [method(name).for_sigma(args.noise, own["validation"]) for name in args.methods]
 
@@ -242,12 +264,14 @@ def main(argv: list[str] | None = None) -> int:
                 f"  {gen:14s} {k:10s} {est.name}: {r.mean():.2f} ({np.median(r):.2f}, {np.quantile(r, 0.95):.2f})"
                 f"  [{time.perf_counter() - t0:.0f} s]  cell {cell.mean():.2f}"
             )
-            for m in others + ([floors[gen, k]] if (gen, k) in floors else []):
+            for m in others + [f[gen, k] for f in (floors, readers) if (gen, k) in f]:
                 p2 = m.predict_lengths(b.bool(), [args.length])[args.length][0]
                 r2 = trajectory_rmse(p2, pos)
                 line += f"  {m.name}: {r2.mean():.2f} ({np.median(r2):.2f})"
                 if m is floors.get((gen, k)):
                     line += f" -> {est.name} {r.mean() / r2.mean():.2f}x the floor"
+                elif m is readers.get((gen, k)):
+                    line += f" -> {est.name} {r.mean() / r2.mean():.2f}x it"
             print(line, flush=True)
     return 0
 

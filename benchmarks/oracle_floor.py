@@ -72,6 +72,11 @@ def main() -> None:
         except ValueError:
             ap.error(f"--misspecify {spec!r}: use KIND.FIELD=V1,V2, e.g. vehicle.mean_speed=8.35")
 
+    try:
+        spreads = [float(v) for v in args.speed_spread.split(",")] if args.speed_spread else []
+    except ValueError:
+        ap.error(f"--speed-spread {args.speed_spread!r}: use shares, e.g. 0.05,0.1")
+
     splits = tuple(args.splits)
     sets, _ = load_splits(args.dataset, ("validation", *splits))
     t0 = time.perf_counter()
@@ -93,7 +98,7 @@ def main() -> None:
             ap.error(str(e))
         m.name = f"oracle {kind} {field} {value:g}"
         methods.append(m)
-    for spread in [float(v) for v in args.speed_spread.split(",")] if args.speed_spread else []:
+    for spread in spreads:
         try:
             counts = {k: max(1, round(n * args.spread_particles)) for k, n in ORACLE_PARTICLES.items()}
             m = OracleMethod(oracle.oracle.with_particles(counts).with_speed_spread(spread))

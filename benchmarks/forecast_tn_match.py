@@ -44,6 +44,8 @@ def main() -> None:
         help="also the oracle knowing the speeds only to within +-S (with --oracle)",
     )
     args = ap.parse_args()
+    if args.speed_spread is not None and not args.oracle:
+        ap.error("--speed-spread needs --oracle")
     torch.set_num_threads(2)
 
     est = Estimator.load(args.run)
@@ -81,18 +83,13 @@ def main() -> None:
             lanes = est.forecast(track.double(), args.horizon).numpy()
             _print_steps("  fast users along the lanes (predict's)", lanes, future, track_err)
         if args.oracle:
-            from estimation.oracle import ORACLE_PARTICLES, OracleMethod
+            from estimation.oracle import OracleMethod
 
             m = OracleMethod(args.dataset).for_sigma(args.sigma, sets["validation"])
             oracles = [("oracle", m.oracle)]
-            if args.speed_spread:
-                x4 = m.oracle.with_particles({k: 4 * n for k, n in ORACLE_PARTICLES.items()})
-                oracles.append(
-                    (
-                        f"oracle reading speeds +-{args.speed_spread:g}",
-                        x4.with_speed_spread(args.speed_spread),
-                    )
-                )
+            if args.speed_spread is not None:
+                reading = m.oracle.with_particle_factor(4).with_speed_spread(args.speed_spread)
+                oracles.append((f"oracle reading speeds +-{args.speed_spread:g}", reading))
             for name, oracle in oracles:
                 t0 = time.perf_counter()
                 both = oracle.track(bits, m.matcher, [args.t_obs], horizon=args.horizon)[args.t_obs]

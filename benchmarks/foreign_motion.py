@@ -235,12 +235,9 @@ def main(argv: list[str] | None = None) -> int:
             floors[key] = OracleMethod(Oracle.from_trajectories(ds, attrs))
             floors[key].matcher = ours.matcher  # the same likelihood: built once
         if args.speed_spread is not None:
-            from estimation import ORACLE_PARTICLES
-
-            x4 = {k: 4 * n for k, n in ORACLE_PARTICLES.items()}
-            for key, floor in list(floors.items()):
+            for key, floor in floors.items():
                 try:
-                    oracle = floor.oracle.with_particles(x4).with_speed_spread(args.speed_spread)
+                    oracle = floor.oracle.with_particle_factor(4).with_speed_spread(args.speed_spread)
                 except EstimationError as e:
                     ap.error(str(e))
                 readers[key] = OracleMethod(oracle)

@@ -86,9 +86,7 @@ def main() -> None:
     )
     methods = [oracle]
     for f in [float(v) for v in args.convergence.split(",")] if args.convergence else []:
-        m = OracleMethod(
-            oracle.oracle.with_particles({k: max(1, round(n * f)) for k, n in ORACLE_PARTICLES.items()})
-        )
+        m = OracleMethod(oracle.oracle.with_particle_factor(f))
         m.name = f"oracle x{f:g}"
         methods.append(m)
     for kind, field, value in changes:
@@ -100,8 +98,9 @@ def main() -> None:
         methods.append(m)
     for spread in spreads:
         try:
-            counts = {k: max(1, round(n * args.spread_particles)) for k, n in ORACLE_PARTICLES.items()}
-            m = OracleMethod(oracle.oracle.with_particles(counts).with_speed_spread(spread))
+            m = OracleMethod(
+                oracle.oracle.with_particle_factor(args.spread_particles).with_speed_spread(spread)
+            )
         except EstimationError as e:
             ap.error(str(e))
         m.name = f"oracle speeds +-{spread:g}" + (

@@ -310,13 +310,28 @@ class _State:
         return _State(*(None if v is None else v[idx] for v in self.__dict__.values()))
 
 
-class _FreeMotion:
-    """The generator's free motion (``generate._attempt_free``) as a particle transition."""
+class _Transition:
+    """What the free and the street transitions share: a kind's motion model over a free space,
+    and the spread of the speeds the particles read (:meth:`Oracle.with_speed_spread`)."""
 
     def __init__(self, model: MotionModel, space: _Space, dt: float, spread: float = 0.0):
         self.model, self.space, self.dt, self.spread = model, space, dt, spread
-        # Segment pieces for the fast clearance test: about 1 m each at the top speed.
-        self.pieces = max(1, math.ceil(model.max_speed * (1.0 + spread) * dt))
+
+    @property
+    def pieces(self) -> int:
+        """Segment pieces for the fast clearance test: about 1 m each at the top speed."""
+        return max(1, math.ceil(self.model.max_speed * (1.0 + self.spread) * self.dt))
+
+    def replaced(self, model: MotionModel, spread: float) -> _Transition:
+        """The same transition (its free space and precomputed tables shared) with another model
+        and spread."""
+        other = copy.copy(self)
+        other.model, other.spread = model, spread
+        return other
+
+
+class _FreeMotion(_Transition):
+    """The generator's free motion (``generate._attempt_free``) as a particle transition."""
 
     def start(self, lik: np.ndarray, n: int, rng: np.random.Generator) -> tuple[_State, np.ndarray]:
         """Particles of the first step and their log importance weights ``(B, n)``.
@@ -433,22 +448,14 @@ class _FreeMotion:
         return _State(nxt, speed, events == STOP, heading=heading, scale=s.scale), ~bad, rows, correction
 
 
-class _StreetMotion:
+class _StreetMotion(_Transition):
     """The generator's vehicles on the street network (``generate._attempt_streets``): a random
     start along the centre lines, a random onward street at every node (never straight back unless
     at a dead end), every chord checked against the free space."""
 
-    def __init__(
-        self,
-        model: MotionModel,
-        space: _Space,
-        dt: float,
-        net: StreetNetwork,
-        spread: float = 0.0,
-        piece: float = 0.5,
-    ):
-        self.model, self.space, self.dt, self.net, self.spread = model, space, dt, net, spread
-        self.pieces = max(1, math.ceil(model.max_speed * (1.0 + spread) * dt))
+    def __init__(self, model: MotionModel, space: _Space, dt: float, net: StreetNetwork, piece: float = 0.5):
+        super().__init__(model, space, dt)
+        self.net = net
         # The first step's proposal picks a piece of centre line (about `piece` metres) by its
         # cell's likelihood times its length, then a point uniformly along it.
         n_p = np.maximum(np.ceil(net.edge_length / piece).astype(np.int64), 1)
@@ -544,14 +551,6 @@ class _StreetMotion:
         ok[rest] = self.space.segments_ok(s.pos[rest], pos[rest], self.pieces, rows[rest])
         state = _State(pos, speed, events == STOP, prev=prev, cur=cur, off=off, scale=s.scale)
         return state, ok, rows, 0.0
-
-
-def _motion_like(old: Any, model: MotionModel, spread: float) -> Any:
-    """A transition of ``old``'s class (free or on the streets) over its free space, with
-    ``model`` and ``spread``."""
-    if isinstance(old, _StreetMotion):
-        return _StreetMotion(model, old.space, old.dt, old.net, spread)
-    return _FreeMotion(model, old.space, old.dt, spread)
 
 
 def _resample(logw: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -662,7 +661,7 @@ class Oracle:
         total = sum(counts[k] for k in kinds)
         self.log_prior = {k: math.log(counts[k] / total) for k in kinds}
         spaces: dict[float, _Space] = {}
-        self.motion: dict[str, Any] = {}
+        self.motion: dict[str, _Transition] = {}
         self.static_space: dict[str, _Space] = {}
         for k in kinds:
             m = models[k]
@@ -685,6 +684,12 @@ class Oracle:
         other = copy.copy(self)
         other.n_particles, other.dead, other._acceptance = _particle_counts(n_particles), 0, {}
         return other
+
+    def with_particle_factor(self, factor: float) -> Oracle:
+        """The same oracle with every kind's particle count times ``factor`` (at least one)."""
+        if not (math.isfinite(factor) and factor > 0):
+            raise EstimationError(f"oracle: particle factor {factor!r} must be > 0")
+        return self.with_particles({k: max(1, round(n * factor)) for k, n in self.n_particles.items()})
 
     def with_model(self, kind: str, **changes: float) -> Oracle:
         """The same oracle with one moving kind's motion model changed: a misspecified oracle.
@@ -725,7 +730,7 @@ class Oracle:
             raise EstimationError(f"oracle: {e}") from None
         other = self.with_particles(self.n_particles)
         other.motion = dict(self.motion)
-        other.motion[kind] = _motion_like(old, model, old.spread)
+        other.motion[kind] = old.replaced(model, old.spread)
         return other
 
     def with_speed_spread(self, spread: float, kinds: Sequence[str] | None = None) -> Oracle:
@@ -761,7 +766,7 @@ class Oracle:
         other = self.with_particles(self.n_particles)
         other.motion = dict(self.motion)
         for k in chosen:
-            other.motion[k] = _motion_like(self.motion[k], self.motion[k].model, float(spread))
+            other.motion[k] = self.motion[k].replaced(self.motion[k].model, float(spread))
         return other
 
     @classmethod
@@ -895,7 +900,7 @@ class Oracle:
 
     def _ahead(
         self,
-        motion: Any,
+        motion: _Transition,
         state: _State,
         logw: np.ndarray,
         last: np.ndarray,

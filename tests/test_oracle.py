@@ -185,6 +185,12 @@ def test_an_oracle_that_reads_the_speeds_finds_them(world):
             true.with_speed_spread(bad)
     with pytest.raises(EstimationError, match="no moving kind 'static'"):
         true.with_speed_spread(0.1, kinds=["static"])
+    # the factor on the particle counts that a spread oracle needs (its own test of convergence)
+    assert true.with_particle_factor(2.5).n_particles == {
+        k: round(2.5 * n) for k, n in true.n_particles.items()
+    }
+    with pytest.raises(EstimationError, match="particle factor"):
+        true.with_particle_factor(0.0)
 
 
 def test_prefix_estimates_see_only_their_steps_and_are_seeded(world):

@@ -236,7 +236,7 @@ class Estimator(nn.Module):
         self.lane_forecast = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
-        self._pooled: tuple[bytes, tuple | None] | None = None  # (digest, speed-pooled copies)
+        self._pooled: tuple[bytes, tuple | None] | None = None  # (digest, _steady_motion's tables)
         self._lanes: tuple[bytes, tuple] | None = None  # (tables' and map's digest, lane copies)
         self.net = build_network(
             config.model,
@@ -328,26 +328,27 @@ class Estimator(nn.Module):
 
         With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
         the measured motion against their
-        :meth:`~estimation.smoothing.motion.MotionTable.broadened` and
-        :meth:`~estimation.smoothing.motion.MotionTable.speed_pooled` copies (the latter where the
-        tables kept their speed bands' counts) by the evidence of each user's fingerprints, for
-        users who do not move like the training users."""
+        :meth:`~estimation.smoothing.motion.MotionTable.broadened` copies and the tables of
+        steady users at other speeds (:meth:`_steady_motion`) by the evidence of each user's
+        fingerprints, for users who do not move like the training users."""
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
         if not bool(net.motion.fitted):  # the hand-set motion
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
         step = float(net.grid_step)
-        alternative = (
-            self._alternative_motion() if (self.robust_motion if robust is None else robust) else None
+        alternative, fine_weighed = (
+            self._alternative_motion() if (self.robust_motion if robust is None else robust) else (None, ())
         )
-        return CandidateFilter(*self._lane_motion(), step, net.k, alternative=alternative)
+        return CandidateFilter(
+            *self._lane_motion(), step, net.k, alternative=alternative, fine_weighed=fine_weighed
+        )
 
     def _tables_digest(self, *extra: np.ndarray) -> bytes:
         """Digest of the motion tables (and ``extra`` arrays): the key of the copies made of them."""
         net = self.net
         digest = hashlib.sha1(str(float(net.grid_step)).encode())
-        for table in (net.motion, net.motion_fine):
+        for table in (net.motion, net.motion_fine, net.motion_scaled):
             for t in (
                 table.fitted,
                 table.speed_edges,
@@ -380,23 +381,39 @@ class Estimator(nn.Module):
             return None
         return self._streets
 
-    def _alternative_motion(self) -> list[tuple[MotionTable, MotionTable | None]]:
+    def _alternative_motion(self) -> tuple[list[tuple[MotionTable, MotionTable | None]], tuple[int, ...]]:
         """The alternatives the filter weighs the measured tables against: their broadened
-        copies, and their speed-pooled copies (with the same lanes as the measured ones) where the
-        tables kept their speed bands' counts (models trained before have the broadened only)."""
-        pooled = self._pooled_motion()
-        return [self._broadened_motion()] + ([pooled] if pooled is not None else [])
+        copies, and the tables for steady users at other speeds (:meth:`_steady_motion`) where
+        the model has them; and the indices of those the filter tells from the measured tables
+        by their sub-cell evidence (``CandidateFilter(fine_weighed=...)``)."""
+        steady = self._steady_motion()
+        if steady is None:
+            return [self._broadened_motion()], ()
+        return [self._broadened_motion(), steady], ((1,) if self._scaled_fine() else ())
 
-    def _pooled_motion(self) -> tuple[MotionTable, MotionTable] | None:
-        """The motion tables' speed-pooled copies (:meth:`MotionTable.speed_pooled`), with the
-        attached street map's lanes where :meth:`_lane_motion` uses them; made again only when
-        the tables or the map change."""
+    def _scaled_fine(self) -> bool:
+        """Whether the model has its sub-cell table's speed-scaled copy (models trained before
+        it existed have not, and weigh the speed-pooled tables instead)."""
+        scaled = getattr(self.net, "motion_scaled", None)
+        return scaled is not None and bool(scaled.fitted)
+
+    def _steady_motion(self) -> tuple[MotionTable, MotionTable] | None:
+        """The tables of users as steady as the training users at speeds they did not keep: the
+        cell-level table's speed-pooled copy (:meth:`MotionTable.speed_pooled`; the table itself
+        where it has no fast bands to pool) and the sub-cell table measured on speed-scaled
+        training trajectories (``net.motion_scaled``), with the attached street map's lanes where
+        :meth:`_lane_motion` uses them. Models saved without the scaled table pool the sub-cell
+        table too, and have none where either has nothing to pool. Made again only when the
+        tables or the map change."""
         net, streets = self.net, self._map_lanes()
         key = self._tables_digest(net.motion.band_count.numpy(), *(streets or ()))
         if self._pooled is None or self._pooled[0] != key:
             cell = net.motion.speed_pooled(POOLED_SPEED)
-            fine = net.motion_fine.speed_pooled(POOLED_SPEED / float(net.grid_step))
-            tables = None if cell is None or fine is None else (cell, fine)
+            if self._scaled_fine():
+                tables = (net.motion if cell is None else cell, net.motion_scaled)
+            else:
+                fine = net.motion_fine.speed_pooled(POOLED_SPEED / float(net.grid_step))
+                tables = None if cell is None or fine is None else (cell, fine)
             if tables is not None and streets is not None:
                 tables = net.lane_tables(*streets, tables=tables)
             self._pooled = (key, tables)

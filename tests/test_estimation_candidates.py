@@ -29,7 +29,7 @@ from estimation.smoothing.hmm import (
     subcell_mean,
     velocity_posterior,
 )
-from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice
+from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from estimation.synthetic import toy_sequence_set
 
 
@@ -520,9 +520,10 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert bool(est.net.motion.fitted) and est.net.motion.has_place
     assert torch.equal(est.net.motion.log_accel_table, expect.log_accel_table)
     assert torch.equal(est.net.motion.log_place, expect.log_place)
-    # (the measured motion alone: the robust filter also weighs in its broadened copy, test_online)
+    # (the measured motion alone: the robust filter also weighs in its broadened copy, test_online,
+    # and the tables of steady users at other speeds, test_speed_scaled)
     found = est.search(bits[:4])
-    assert est.candidate_filter().run(*found).model_weights().shape == (4, 2)
+    assert est.candidate_filter().run(*found).model_weights().shape == (4, 3)
     # the broadened copies are made once per set of tables, not once per filter
     broad = est._broadened_motion()
     assert est._broadened_motion() is broad
@@ -556,9 +557,31 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
         )
     )
     est.net.fit_motion(np.concatenate([fast, tr.positions[:, :4]]), tr.grid_xy)
-    pooled = est._pooled_motion()
-    assert pooled is not None and est._pooled_motion() is pooled
-    assert est.candidate_filter().run(*found).model_weights().shape == (4, 3)
+    # the sub-cell table measured again on speed-scaled copies of the trajectories, with the
+    # measured place table; told from the measured one by the sub-cell evidence
+    both = np.concatenate([fast, tr.positions[:, :4]]) - lo
+    scaled = MotionTable.lattice().fit(snap_to_lattice(speed_scaled(both)))
+    assert torch.equal(est.net.motion_scaled.log_accel_table, scaled.log_accel_table)
+    assert torch.equal(est.net.motion_scaled.log_place, est.net.motion_fine.log_place)
+    steady = est._steady_motion()
+    assert steady is not None and est._steady_motion() is steady and steady[1].has_place
+    assert torch.equal(steady[0].log_accel_table, est.net.motion.speed_pooled(6.0).log_accel_table)
+    f = est.candidate_filter()
+    assert f._fine_group == [0, 2] and f.run(*found).model_weights().shape == (4, 3)
+    # a model saved before the scaled table existed loads without it and weighs the pooled tables
+    # by their cell-level evidence, as it did
+    saved = torch.load(tmp_path / "run" / "model.pt", weights_only=True)
+    saved["state_dict"] = {
+        k: v for k, v in est.net.state_dict().items() if not k.startswith("motion_scaled.")
+    }
+    torch.save(saved, tmp_path / "old.pt")
+    old = Estimator.load(tmp_path / "old.pt").attach(va)
+    assert not bool(old.net.motion_scaled.fitted) and not old._scaled_fine()
+    f = old.candidate_filter()
+    assert f._fine_group == [] and f.run(*found).model_weights().shape == (4, 3)
+    pooled = old._steady_motion()
+    expect = est.net.motion_fine.speed_pooled(6.0)
+    assert torch.equal(pooled[1].log_accel_table, expect.log_accel_table)
 
 
 def test_snap_to_lattice_keeps_grid_points_for_odd_and_centres_cells_for_even():

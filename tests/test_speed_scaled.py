@@ -109,5 +109,6 @@ def test_fine_weighed_models_need_sub_cell_tables_and_an_identical_one_keeps_the
         CandidateFilter(cell, fine, alternative=[(cell.broadened(), None)], fine_weighed=(0,))
     with pytest.raises(ValueError, match="sub-cell"):
         CandidateFilter(cell, None, alternative=[(cell, fine)], fine_weighed=(0,))
-    with pytest.raises(ValueError, match="sub-cell"):
-        CandidateFilter(cell, fine, alternative=[(cell, fine)], fine_weighed=(1,))
+    for bad in ((1,), (-1,)):
+        with pytest.raises(ValueError, match="indices"):
+            CandidateFilter(cell, fine, alternative=[(cell, fine)], fine_weighed=bad)

@@ -315,13 +315,17 @@ class CandidateFilter:
             self._log_prior = np.log([1.0 - alternative_prior] + [share] * len(alternatives))
         else:
             self._log_prior = np.zeros(1)
-        self._fine_group = [0] + [1 + int(i) for i in fine_weighed] if len(fine_weighed) else []
-        for i in self._fine_group:
-            if not 0 <= i < len(self._models) or self._models[i].fine is None:
-                raise ValueError(
-                    f"fine_weighed {tuple(fine_weighed)}: every model weighed by its sub-cell evidence, "
-                    "and the measured one, needs a fitted sub-cell table"
-                )
+        picked = [int(i) for i in fine_weighed]
+        if any(not 0 <= i < len(alternatives) for i in picked):
+            raise ValueError(
+                f"fine_weighed {tuple(fine_weighed)}: indices into the {len(alternatives)} alternatives"
+            )
+        self._fine_group = [0] + [1 + i for i in picked] if picked else []
+        if any(self._models[i].fine is None for i in self._fine_group):
+            raise ValueError(
+                f"fine_weighed {tuple(fine_weighed)}: every model weighed by its sub-cell evidence, "
+                "and the measured one, needs a fitted sub-cell table"
+            )
         off = (np.arange(n_sub) - (n_sub - 1) / 2) / n_sub
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])

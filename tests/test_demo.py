@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter
 
 import numpy as np
@@ -135,3 +136,26 @@ def test_importing_the_demo_loads_neither_torch_nor_ompl():
         "sys.exit(1 if {'torch', 'ompl', 'estimation', 'planning'} & set(sys.modules) else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_floor_gap_benchmark_reads_the_demo(demo, capsys):
+    """benchmarks/floor_gap.py: the demo's model against the oracle per kind, per event and along /
+    across the motion, through the public API; a kind it does not know is refused with exit 2."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "floor_gap.py"
+    spec = importlib.util.spec_from_file_location("floor_gap", script)
+    floor_gap = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(floor_gap)
+    run, data = str(demo / "runs" / f"{MODEL}-tiny"), str(demo / "dataset-tiny.zarr")
+    assert floor_gap.main([run, data, "--n", "4", "--kinds", "pedestrian,vehicle"]) == 0
+    out = capsys.readouterr().out
+    for kind in ("pedestrian", "vehicle"):
+        line = next(x for x in out.splitlines() if x.startswith(f"{kind} ("))
+        ours, floor = (float(v) for v in re.findall(r"(?:tn-match|oracle) (\d+\.\d+)", line))
+        assert floor > 0 and f"({ours / floor:.2f}x" in line
+    assert "a step over 2 m off" in out and " event: " in out
+    with pytest.raises(SystemExit) as e:
+        floor_gap.main([run, data, "--kinds", "bicycle"])
+    assert e.value.code == 2 and "bicycle" in capsys.readouterr().err

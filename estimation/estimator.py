@@ -383,13 +383,21 @@ class Estimator(nn.Module):
 
     def _alternative_motion(self) -> tuple[list[tuple[MotionTable, MotionTable | None]], tuple[int, ...]]:
         """The alternatives the filter weighs the measured tables against: their broadened
-        copies, and the tables for steady users at other speeds (:meth:`_steady_motion`) where
-        the model has them; and the indices of those the filter tells from the measured tables
-        by their sub-cell evidence (``CandidateFilter(fine_weighed=...)``)."""
+        copies, the tables for steady users at other speeds (:meth:`_steady_motion`) and those of
+        one kind alone (:meth:`_kind_motion`) where the model has them; and the indices of those
+        the filter tells from the measured tables by their sub-cell evidence
+        (``CandidateFilter(fine_weighed=...)``)."""
         steady = self._steady_motion()
+        kind = [self._kind_motion()] if bool(self.net.motion_kind.fitted) else []
         if steady is None:
-            return [self._broadened_motion()], ()
-        return [self._broadened_motion(), steady], ((1,) if self._scaled_fine() else ())
+            return [self._broadened_motion(), *kind], ()
+        return [self._broadened_motion(), steady, *kind], ((1,) if self._scaled_fine() else ())
+
+    def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:
+        """The tables measured on the training users of one kind alone
+        (:data:`~estimation.models.candidate_transformer.KIND_TABLE`)."""
+        net = self.net
+        return net.motion_kind, (net.motion_kind_fine if bool(net.motion_kind_fine.fitted) else None)
 
     def _scaled_fine(self) -> bool:
         """Whether the model has its sub-cell table's speed-scaled copy (models trained before

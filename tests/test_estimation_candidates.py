@@ -21,6 +21,8 @@ from estimation import (
 )
 from estimation.evaluation import NetworkMethod
 from estimation.models import CandidateTransformer
+from estimation.models.candidate_transformer import KIND_TABLE, KIND_TABLE_MIN
+from estimation.smoothing.beam import motion_arrays
 from estimation.smoothing.forecast import extrapolate, forecast_tracks
 from estimation.smoothing.hmm import (
     STEP_SIGMAS,
@@ -31,6 +33,7 @@ from estimation.smoothing.hmm import (
 )
 from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from estimation.synthetic import toy_sequence_set
+from mmwsim.trajectories.motion import KINDS
 
 
 def test_motion_posterior_one_step_is_the_likelihood():
@@ -582,6 +585,35 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     pooled = old._steady_motion()
     expect = est.net.motion_fine.speed_pooled(6.0)
     assert torch.equal(pooled[1].log_accel_table, expect.log_accel_table)
+    # Told the trajectories' kinds, training also measures both tables on the cyclists alone
+    # (no place table), a fourth hypothesis; with fewer than KIND_TABLE_MIN of them, none.
+    kind = tr.kind.copy()
+    assert not (kind == KINDS.index(KIND_TABLE)).any() and not bool(est.net.motion_kind.fitted)
+    kind[:KIND_TABLE_MIN] = KINDS.index(KIND_TABLE)
+    est.net.fit_motion(tr.positions, tr.grid_xy, tr.index, kind=kind)
+    mine = slice(0, KIND_TABLE_MIN)
+    cell = MotionTable().fit(tr.grid_xy[tr.index][mine])
+    assert torch.equal(est.net.motion_kind.log_accel_table, cell.log_accel_table)
+    assert not est.net.motion_kind.has_place and not est.net.motion_kind_fine.has_place
+    fine_kind = MotionTable.lattice().fit(snap_to_lattice(tr.positions[mine] - lo))
+    assert torch.equal(est.net.motion_kind_fine.log_accel_table, fine_kind.log_accel_table)
+    est._steady = est._broadened = None
+    f = est.candidate_filter()
+    assert f._fine_group == [0, 2] and f.run(*found).model_weights().shape == (4, 4)
+    assert f._models[3].cells.m is motion_arrays(est.net.motion_kind)
+    # saved and loaded with the weights; a model saved before they existed has them unfitted
+    est.save(tmp_path / "kind.pt")
+    assert Estimator.load(tmp_path / "kind.pt").attach(va).candidate_filter().run(
+        *found
+    ).model_weights().shape == (
+        4,
+        4,
+    )
+    kind[0] = KINDS.index("pedestrian")
+    est.net.fit_motion(tr.positions, tr.grid_xy, tr.index, kind=kind)
+    assert not bool(est.net.motion_kind.fitted) and not bool(est.net.motion_kind_fine.fitted)
+    with pytest.raises(ValueError, match="codes"):
+        est.net.fit_motion(tr.positions, tr.grid_xy, tr.index, kind=kind[:-1])
 
 
 def test_snap_to_lattice_keeps_grid_points_for_odd_and_centres_cells_for_even():

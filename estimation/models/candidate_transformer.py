@@ -33,15 +33,23 @@ import numpy as np
 import torch
 from torch import nn
 
+from mmwsim.trajectories.motion import KINDS
+
 from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
 from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice, speed_scaled
 from .embedding import sinusoidal_encoding
 from .encoder import encode
 
-__all__ = ["CandidateTransformer"]
+__all__ = ["KIND_TABLE", "KIND_TABLE_MIN", "CandidateTransformer"]
 
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
+# The kind whose own motion tables the filter weighs as one more alternative: cyclists, whose
+# stops, restarts and turns at 3.4 m/s the tables pooled over every kind drown among the
+# pedestrians' and the vehicles' (docs/estimation.md: one table per kind measured the same way
+# gains the others 0.5 to 1.6 % for twice the filter's work).
+KIND_TABLE = "hybrid"
+KIND_TABLE_MIN = 20  # trajectories of that kind below which its tables are not measured
 
 
 def _place_frames(grid_xy: np.ndarray) -> tuple[np.ndarray, float, tuple, tuple]:
@@ -113,6 +121,11 @@ class CandidateTransformer(nn.Module):
         # alternative for steady users at speeds the training users did not keep (unfitted in
         # models saved before it existed, which weigh the speed-pooled tables instead).
         self.motion_scaled = MotionTable.lattice()
+        # Both tables measured on the training users of KIND_TABLE alone: the filter's alternative
+        # for the kind the tables pooled over every kind drown (unfitted in models saved before
+        # they existed, or trained without that kind).
+        self.motion_kind = MotionTable()
+        self.motion_kind_fine = MotionTable.lattice()
         self.register_buffer("grid_step", torch.tensor(1.0))
         # Start as the classical smoother: unit weight on the constant-velocity posterior, the
         # learned terms at zero, the output the sub-cell smoother's, so training starts from it.
@@ -127,6 +140,7 @@ class CandidateTransformer(nn.Module):
         grid_xy: np.ndarray,
         index: np.ndarray | None = None,
         places: bool = True,
+        kind: np.ndarray | None = None,
     ) -> CandidateTransformer:
         """Measure both smoothers' motion (and, with ``places``, place) tables on training
         trajectories ``positions (n, L >= 3, 2)`` metres over the grid points ``grid_xy (G, 2)``
@@ -134,7 +148,9 @@ class CandidateTransformer(nn.Module):
         drawn at (default the nearest grid point), the sub-cell smoother's on the positions snapped
         to the lattice of :func:`subcell_mean`, and its speed-scaled copy on
         :func:`~estimation.smoothing.motion.speed_scaled` copies of them (the same place table).
-        Returns ``self``."""
+        With the trajectories' ``kind (n,)`` codes (``mmwsim.trajectories.KINDS``), both tables
+        again on the users of :data:`KIND_TABLE` alone, without a place table, where there are at
+        least :data:`KIND_TABLE_MIN` of them (else they stay unfitted). Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
         lo, spacing, cell, fine = _place_frames(grid_xy)
@@ -151,6 +167,14 @@ class CandidateTransformer(nn.Module):
         self.motion_scaled = copy.deepcopy(self.motion_fine).fit(
             snap_to_lattice(speed_scaled((p - lo) / spacing))
         )
+        self.motion_kind, self.motion_kind_fine = MotionTable(), MotionTable.lattice()
+        if kind is not None:
+            mine = np.asarray(kind).reshape(-1) == KINDS.index(KIND_TABLE)
+            if len(mine) != len(p):
+                raise ValueError(f"kind holds {len(mine)} codes for {len(p)} trajectories")
+            if mine.sum() >= KIND_TABLE_MIN:
+                self.motion_kind.fit(on_grid[mine])
+                self.motion_kind_fine.fit(u[mine])
         self.grid_step.fill_(spacing)
         return self
 

@@ -328,9 +328,10 @@ class Estimator(nn.Module):
 
         With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
         the measured motion against their
-        :meth:`~estimation.smoothing.motion.MotionTable.broadened` copies and the tables of
-        steady users at other speeds (:meth:`_steady_motion`) by the evidence of each user's
-        fingerprints, for users who do not move like the training users."""
+        :meth:`~estimation.smoothing.motion.MotionTable.broadened` copies, the tables of
+        steady users at other speeds (:meth:`_steady_motion`) and, where training measured them,
+        the tables of the training cyclists alone (:meth:`_kind_motion`) by the evidence of each
+        user's fingerprints, for users who do not move like the training users as a whole."""
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net

@@ -153,6 +153,9 @@ class CandidateTransformer(nn.Module):
         least :data:`KIND_TABLE_MIN` of them (else they stay unfitted). Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
+        mine = None if kind is None else np.asarray(kind).reshape(-1) == KINDS.index(KIND_TABLE)
+        if mine is not None and len(mine) != len(p):
+            raise ValueError(f"kind holds {len(mine)} codes for {len(p)} trajectories")
         lo, spacing, cell, fine = _place_frames(grid_xy)
         on_grid = lo + np.rint((p - lo) / spacing) * spacing if index is None else grid_xy[index]
         self.motion.fit(on_grid)
@@ -168,13 +171,9 @@ class CandidateTransformer(nn.Module):
             snap_to_lattice(speed_scaled((p - lo) / spacing))
         )
         self.motion_kind, self.motion_kind_fine = MotionTable(), MotionTable.lattice()
-        if kind is not None:
-            mine = np.asarray(kind).reshape(-1) == KINDS.index(KIND_TABLE)
-            if len(mine) != len(p):
-                raise ValueError(f"kind holds {len(mine)} codes for {len(p)} trajectories")
-            if mine.sum() >= KIND_TABLE_MIN:
-                self.motion_kind.fit(on_grid[mine])
-                self.motion_kind_fine.fit(u[mine])
+        if mine is not None and mine.sum() >= KIND_TABLE_MIN:
+            self.motion_kind.fit(on_grid[mine])
+            self.motion_kind_fine.fit(u[mine])
         self.grid_step.fill_(spacing)
         return self
 

@@ -48,6 +48,22 @@ def test_draws(data, n_max: int, sigma: float, length: int | None = None):
     return data, noisy_bits(data, sigma, torch.Generator().manual_seed(1))
 
 
+def stored_bits(ds, positions: np.ndarray, seed: int):
+    """Fingerprints of trajectories ``positions (n, L, 2)`` metres drawn with fresh noise from a
+    data set's stored PDPs at their nearest grid points (``Dataset.fingerprints``): a float
+    tensor ``(n, L, M, N_s)`` and the grid points ``(n * L,)``."""
+    import torch
+
+    idx = ds.nearest(positions.reshape(-1, 2))
+    bits = ds.fingerprints(idx, np.random.default_rng(seed))
+    return torch.from_numpy(bits.reshape(*positions.shape[:2], *bits.shape[1:])).float(), idx
+
+
+def predict_batched(est, bits, size: int = 500) -> np.ndarray:
+    """``est.predict`` over ``bits`` in batches of ``size`` sequences, as one array."""
+    return np.concatenate([est.predict(bits[i : i + size]).numpy() for i in range(0, len(bits), size)])
+
+
 RECIPE_MINUTES = 30.0
 """The wall-clock budget a model's own epoch count (its cosine schedule's horizon) is sized for."""
 

@@ -26,6 +26,7 @@ import sys
 import time
 
 import numpy as np
+from _common import predict_batched, stored_bits
 
 GROSS = 2.0  # metres: a step this far off is a gross error
 
@@ -53,8 +54,6 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.n < 1 or args.length < 2:
         ap.error("--n must be >= 1 and --length >= 2")
-
-    import torch
 
     from estimation import Estimator, Oracle, OracleMethod
     from estimation.adapter import load_splits
@@ -86,9 +85,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         pos = test.positions[sel, : args.length, :2].astype(np.float64)
         events = test.events[sel, : args.length - 1]
-        bits = ds.fingerprints(ds.nearest(pos.reshape(-1, 2)), np.random.default_rng(args.seed))
-        b = torch.from_numpy(bits.reshape(len(pos), args.length, *bits.shape[1:])).float()
-        ours = np.concatenate([est.predict(b[i : i + 500]).numpy() for i in range(0, len(b), 500)])
+        b, _ = stored_bits(ds, pos, args.seed)
+        ours = predict_batched(est, b)
         t0 = time.perf_counter()
         floor = oracle.predict_lengths(b.bool(), [args.length])[args.length][0]
         t_oracle = time.perf_counter() - t0

@@ -51,6 +51,7 @@ import sys
 import time
 
 import numpy as np
+from _common import predict_batched, stored_bits
 
 KINDS = ("pedestrian", "vehicle")
 # kinds whose mean speed --KIND-speeds shifts, with an example for the help
@@ -198,8 +199,6 @@ def main(argv: list[str] | None = None) -> int:
         if not all(math.isfinite(v) and v > 0 for v in shifted[kind]):
             ap.error(f"--{kind}-speeds {given!r}: speeds must be positive numbers")
 
-    import torch
-
     from estimation import EstimationError, Estimator, method
     from estimation.adapter import load_splits
     from estimation.metrics import trajectory_rmse
@@ -263,11 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     for gen, per_kind in sets.items():
         for k, pos in per_kind.items():
-            idx = ds.nearest(pos.reshape(-1, 2))
-            bits = ds.fingerprints(idx, np.random.default_rng(args.seed + 7))
-            b = torch.from_numpy(bits.reshape(len(pos), args.length, *bits.shape[1:])).float()
+            b, idx = stored_bits(ds, pos, args.seed + 7)
             t0 = time.perf_counter()
-            pred = np.concatenate([est.predict(b[i : i + 500]).numpy() for i in range(0, len(b), 500)])
+            pred = predict_batched(est, b)
             r = trajectory_rmse(pred, pos)
             cell = trajectory_rmse(ds.positions[idx][:, :2].reshape(pos.shape), pos)
             line = (

@@ -397,8 +397,7 @@ class Estimator(nn.Module):
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The tables measured on the training users of one kind alone
         (:data:`~estimation.models.candidate_transformer.KIND_TABLE`)."""
-        net = self.net
-        return net.motion_kind, (net.motion_kind_fine if bool(net.motion_kind_fine.fitted) else None)
+        return self.net.motion_kind, self.net.motion_kind_fine
 
     def _scaled_fine(self) -> bool:
         """Whether the model has its sub-cell table's speed-scaled copy (models trained before

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from collections import Counter
 
 import numpy as np
@@ -145,6 +146,8 @@ def test_floor_gap_benchmark_reads_the_demo(demo, capsys):
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "floor_gap.py"
+    if str(script.parent) not in sys.path:  # it imports its neighbour _common, as when run
+        sys.path.insert(0, str(script.parent))
     spec = importlib.util.spec_from_file_location("floor_gap", script)
     floor_gap = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(floor_gap)

@@ -603,12 +603,9 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert f._models[3].cells.m is motion_arrays(est.net.motion_kind)
     # saved and loaded with the weights; a model saved before they existed has them unfitted
     est.save(tmp_path / "kind.pt")
-    assert Estimator.load(tmp_path / "kind.pt").attach(va).candidate_filter().run(
-        *found
-    ).model_weights().shape == (
-        4,
-        4,
-    )
+    loaded = Estimator.load(tmp_path / "kind.pt").attach(va)
+    assert torch.equal(loaded.net.motion_kind_fine.log_accel_table, fine_kind.log_accel_table)
+    assert loaded.candidate_filter().run(*found).model_weights().shape == (4, 4)
     kind[0] = KINDS.index("pedestrian")
     est.net.fit_motion(tr.positions, tr.grid_xy, tr.index, kind=kind)
     assert not bool(est.net.motion_kind.fitted) and not bool(est.net.motion_kind_fine.fitted)

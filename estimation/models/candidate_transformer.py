@@ -46,8 +46,8 @@ __all__ = ["KIND_TABLE", "KIND_TABLE_MIN", "CandidateTransformer"]
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 # The kind whose own motion tables the filter weighs as one more alternative: cyclists, whose
 # stops, restarts and turns at 3.4 m/s the tables pooled over every kind drown among the
-# pedestrians' and the vehicles' (docs/estimation.md: one table per kind measured the same way
-# gains the others 0.5 to 1.6 % for twice the filter's work).
+# pedestrians' and the vehicles' (docs/estimation.md: tables of the other kinds too gained them
+# 0.5 to 1.6 % for two more hypotheses, each one more beam per stage).
 KIND_TABLE = "hybrid"
 KIND_TABLE_MIN = 20  # trajectories of that kind below which its tables are not measured
 

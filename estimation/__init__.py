@@ -68,6 +68,7 @@ _EXPORTS = {
     ".smoothing": (
         "CandidateFilter",
         "MixtureMotion",
+        "MotionMemory",
         "MotionTable",
         "extrapolate",
         "forecast_tracks",

@@ -331,7 +331,9 @@ class Estimator(nn.Module):
         :meth:`~estimation.smoothing.motion.MotionTable.broadened` copies, the tables of
         steady users at other speeds (:meth:`_steady_motion`) and, where training measured them,
         the tables of the training cyclists alone (:meth:`_kind_motion`) by the evidence of each
-        user's fingerprints, for users who do not move like the training users as a whole."""
+        user's fingerprints, for users who do not move like the training users as a whole.
+        Where training measured it, the smoothed sub-cell tracks also weigh the acceleration
+        memory (:class:`~estimation.smoothing.memory.MotionMemory`)."""
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
@@ -342,8 +344,9 @@ class Estimator(nn.Module):
             self._alternative_motion() if (self.robust_motion if robust is None else robust) else (None, ())
         )
         return CandidateFilter(
-            *self._lane_motion(), step, net.k, alternative=alternative, fine_weighed=fine_weighed
-        )
+            *self._lane_motion(), step, net.k, alternative=alternative, fine_weighed=fine_weighed,
+            memory=getattr(net, "memory", None),
+        )  # fmt: skip
 
     def _tables_digest(self, *extra: np.ndarray) -> bytes:
         """Digest of the motion tables (and ``extra`` arrays): the key of the copies made of them."""

@@ -31,6 +31,7 @@ from estimation.smoothing.hmm import (
     subcell_mean,
     velocity_posterior,
 )
+from estimation.smoothing.memory import MotionMemory
 from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from estimation.synthetic import toy_sequence_set
 from mmwsim.trajectories.motion import KINDS
@@ -535,7 +536,10 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     est.net.motion_fine.log_step_table[0] -= 1.0
     est.robust_motion = False
     assert est.candidate_filter().run(*found).model_weights().shape == (4, 1)
-    xy, post, fine = est.candidate_filter().run(*found).smooth()
+    plain = est.candidate_filter()
+    assert plain.memory is est.net.memory
+    plain.memory = None  # the first-order smoother alone
+    xy, post, fine = plain.run(*found).smooth()
     assert torch.allclose(
         post[..., -1], velocity_posterior(xy, post[..., 0], expect).clamp(min=-30), atol=1e-5
     )
@@ -547,6 +551,11 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # the online filter splits the cells it finds likely so far and prunes pairs, so it is the
     # dense sub-cell smoother up to a few centimetres (exactly when nothing is pruned: test_online)
     assert (fine - subcell_mean(xy, post[..., 0], post[..., -1], lattice)).norm(dim=-1).max() < 0.05
+    # training measured the acceleration memory on the same lattice positions; the filter weighs
+    # its paths by it, which moves the sub-cell tracks by a little
+    assert torch.equal(est.net.memory.log_ratio, MotionMemory().fit(u).log_ratio)
+    moved = (est.candidate_filter().run(*found).smooth()[2] - fine).norm(dim=-1)
+    assert 0 < moved.max() < 0.5
     # tables measured on fast users too (bands of 6 per step and up with samples) give the
     # robust filter a third hypothesis, the speed-pooled tables, made once per set of tables
     est.robust_motion = True
@@ -575,11 +584,12 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # by their cell-level evidence, as it did
     saved = torch.load(tmp_path / "run" / "model.pt", weights_only=True)
     saved["state_dict"] = {
-        k: v for k, v in est.net.state_dict().items() if not k.startswith("motion_scaled.")
+        k: v for k, v in est.net.state_dict().items() if not k.startswith(("motion_scaled.", "memory."))
     }
     torch.save(saved, tmp_path / "old.pt")
     old = Estimator.load(tmp_path / "old.pt").attach(va)
     assert not bool(old.net.motion_scaled.fitted) and not old._scaled_fine()
+    assert not bool(old.net.memory.fitted) and old.candidate_filter().memory is None
     f = old.candidate_filter()
     assert f._fine_group == [] and f.run(*found).model_weights().shape == (4, 3)
     pooled = old._steady_motion()

@@ -37,6 +37,7 @@ from mmwsim.trajectories.motion import KINDS
 
 from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
+from ..smoothing.memory import MotionMemory
 from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice, speed_scaled
 from .embedding import sinusoidal_encoding
 from .encoder import encode
@@ -126,6 +127,9 @@ class CandidateTransformer(nn.Module):
         # they existed, or trained without that kind).
         self.motion_kind = MotionTable()
         self.motion_kind_fine = MotionTable.lattice()
+        # How an acceleration on the lattice depends on the one before it, measured on the same
+        # trajectories (none in models saved before it existed).
+        self.memory = MotionMemory()
         self.register_buffer("grid_step", torch.tensor(1.0))
         # Start as the classical smoother: unit weight on the constant-velocity posterior, the
         # learned terms at zero, the output the sub-cell smoother's, so training starts from it.
@@ -150,7 +154,9 @@ class CandidateTransformer(nn.Module):
         :func:`~estimation.smoothing.motion.speed_scaled` copies of them (the same place table).
         With the trajectories' ``kind (n,)`` codes (``mmwsim.trajectories.KINDS``), both tables
         again on the users of :data:`KIND_TABLE` alone, without a place table, where there are at
-        least :data:`KIND_TABLE_MIN` of them (else they stay unfitted). Returns ``self``."""
+        least :data:`KIND_TABLE_MIN` of them (else they stay unfitted). With ``L >= 4``, the
+        acceleration memory (:class:`~estimation.smoothing.memory.MotionMemory`) on the lattice
+        positions too. Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
         mine = None if kind is None else np.asarray(kind).reshape(-1) == KINDS.index(KIND_TABLE)
@@ -161,6 +167,9 @@ class CandidateTransformer(nn.Module):
         self.motion.fit(on_grid)
         u = snap_to_lattice((p - lo) / spacing)  # grid units from the first grid point
         self.motion_fine.fit(u)
+        self.memory = MotionMemory()
+        if p.shape[1] >= 4:
+            self.memory.fit(u)
         if places:
             self.motion.fit_place(on_grid, *cell)
             self.motion_fine.fit_place(u + lo / spacing, *fine, PLACE_SPEED / spacing)

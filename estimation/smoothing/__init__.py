@@ -1,15 +1,18 @@
 """Smoothing of per-step fingerprint matches: Kalman (one match per step) and hidden-Markov (many
-candidates per step), with the motion densities the hidden-Markov smoothers score steps by."""
+candidates per step), with the motion densities the hidden-Markov smoothers score steps by and the acceleration
+memory their sampled paths are weighed by."""
 
 from .forecast import carry, extrapolate, forecast_tracks
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
 from .kalman import kalman_forecast, rts_smoother
+from .memory import MotionMemory
 from .motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from .online import CandidateFilter
 
 __all__ = [
     "CandidateFilter",
     "MixtureMotion",
+    "MotionMemory",
     "MotionTable",
     "candidate_features",
     "carry",

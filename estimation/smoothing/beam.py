@@ -35,6 +35,7 @@ __all__ = [
     "pair_forward",
     "pair_start",
     "rw_step",
+    "sample_paths",
 ]
 
 _NEG = -1e300  # log of a pair that was pruned (or an impossible one)
@@ -637,4 +638,105 @@ def beam_smooth(
                 )
                 beta[:] = prev
             o += L
+    return out
+
+
+@njit(cache=True, nogil=True)
+def sample_paths(
+    xy, lp, pi, ci, la, T, n, seed, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
+):
+    """Paths drawn from the smoothed posterior of the first ``T`` steps given those steps, from a
+    beam's stored forward messages (forward filtering, backward sampling): the last pair by its
+    message, then each pair before by its message times the acceleration density to the pair
+    drawn after it (:func:`_transitions`' densities, worked out once per step for all paths).
+
+    Parameters
+    ----------
+    xy : (B, T', K, 2) float64; the steps' points (T' >= T >= 2)
+    lp : (B, T', K) float64; their log likelihoods
+    pi, ci, la : (B, T' - 1, M) the kept pairs of steps 1.. (see :func:`pair_start`), index order
+    T : int, the prefix
+    n : int, paths per sequence
+    seed : int; every sequence draws from its own generator seeded with it, so a sequence's paths
+        do not depend on the others in its batch
+    speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
+        tables (:class:`MotionArrays`)
+
+    Returns
+    -------
+    (B, n, T) int64; each path's point index at every step. The last pairs are drawn
+    systematically (one uniform for all ``n``), so a pair of posterior mass ``m`` is drawn
+    ``n m`` times rounded either way.
+    """
+    B, M, K = la.shape[0], la.shape[2], xy.shape[2]
+    tables = (speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob)
+    work = (xy, lp, pi, ci, la, place, tables, np.empty(M, np.int64), np.empty(M), np.empty(M))
+    out = np.zeros((B, n, T), np.int64)
+    cur = np.empty(n, np.int64)  # each path's pair at the step being drawn back from
+    start, base = np.zeros(K + 1, np.int64), np.empty(M)
+    row, val = np.empty(M + 1, np.int64), np.empty(M * K)
+    order, gstart, fill = np.empty(M, np.int64), np.empty(K + 1, np.int64), np.empty(K, np.int64)
+    cw, wq = np.empty(M), np.empty(M)
+    for b in range(B):
+        # numba's generator has one state per thread, and a sequence runs on one thread from its
+        # own seed: the legacy API is the one compiled code has
+        np.random.seed(seed)  # noqa: NPY002
+        s = T - 2
+        top = -np.inf
+        for q in range(M):
+            top = max(top, la[b, s, q])
+        acc = 0.0
+        for q in range(M):
+            acc += math.exp(la[b, s, q] - top) if la[b, s, q] > _NEG else 0.0
+            cw[q] = acc
+        u0 = np.random.random()  # noqa: NPY002
+        q = 0
+        for j in range(n):
+            target = (j + u0) / n * acc
+            while q < M - 1 and (cw[q] < target or la[b, s, q] <= _NEG):
+                q += 1
+            cur[j] = q
+            out[b, j, T - 1], out[b, j, T - 2] = ci[b, s, q], pi[b, s, q]
+        for t in range(T - 1, 1, -1):
+            s = t - 1  # the paths' pairs (t-1, t); their predecessors are pairs (t-2, t-1)
+            _prepare_step(b, t, work, start, base, row, val)
+            # the predecessors grouped by their point at t-1 (a counting sort), and their messages
+            gstart[:] = 0
+            top = -np.inf
+            for q in range(M):
+                if la[b, s - 1, q] > _NEG:
+                    gstart[ci[b, s - 1, q] + 1] += 1
+                    top = max(top, la[b, s - 1, q])
+            for k in range(K):
+                gstart[k + 1] += gstart[k]
+                fill[k] = gstart[k]
+            for q in range(M):
+                if la[b, s - 1, q] > _NEG:
+                    order[fill[ci[b, s - 1, q]]] = q
+                    fill[ci[b, s - 1, q]] += 1
+                    wq[q] = math.exp(la[b, s - 1, q] - top)
+            for j in range(n):
+                p = cur[j]
+                a = pi[b, s, p]
+                r = p - start[a]  # the pair's place among those leaving a (see _transitions)
+                lo, hi = gstart[a], gstart[a + 1]
+                tot = 0.0
+                for g in range(lo, hi):
+                    q = order[g]
+                    if row[q + 1] - row[q] > r:
+                        tot += wq[q] * val[row[q] + r]
+                    cw[g - lo] = tot
+                if tot <= 0.0:  # no kept predecessor leads there: the likeliest one
+                    best, ref = 0, -np.inf
+                    for q in range(M):
+                        if la[b, s - 1, q] > ref:
+                            best, ref = q, la[b, s - 1, q]
+                    cur[j] = best
+                else:
+                    target = np.random.random() * tot  # noqa: NPY002
+                    g = 0
+                    while g < hi - lo - 1 and cw[g] < target:
+                        g += 1
+                    cur[j] = order[lo + g]
+                out[b, j, t - 2] = pi[b, s - 1, cur[j]]
     return out

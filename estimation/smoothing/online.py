@@ -20,7 +20,11 @@ evidence so far.
 Each update costs the same whatever the number of steps before it and gives the user's current
 position (the filtered sub-cell mean). :meth:`CandidateFilter.smooth` turns the stored messages of
 any prefix into the smoothed candidates, posteriors and positions the network reads, by one
-backward pass: a prefix's result never depends on the steps after it.
+backward pass: a prefix's result never depends on the steps after it. With an acceleration memory
+(:class:`~estimation.smoothing.memory.MotionMemory`) the smoothed sub-cell positions are those of
+the smoother one order higher, by importance sampling: paths drawn from each sub-cell beam's
+posterior (:func:`~estimation.smoothing.beam.sample_paths`) are weighed by how the memory rates
+each acceleration after the one before it.
 """
 
 from __future__ import annotations
@@ -33,8 +37,9 @@ import torch
 from mmwsim._threads import pieces, thread_map, threads
 
 from ..matching import GUIDE
-from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_step
+from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_step, sample_paths
 from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _rw_transitions, _step_distances
+from .memory import MEMORY_PATHS, MEMORY_WEIGHT, MotionMemory, memory_shift
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
 __all__ = ["ALTERNATIVE_PRIOR", "BEAM", "FINE_BEAM", "FINE_CELLS", "VAGUE_GATE", "CandidateFilter"]
@@ -162,6 +167,19 @@ class _Beam:
         """The first ``T`` steps' log likelihoods ``(B, T, K)`` (a view)."""
         return self.lp.upto(T)
 
+    def sample(self, T: int, n: int, rows: np.ndarray | None = None, seed: int = 0) -> np.ndarray:
+        """``n`` paths per sequence drawn from the smoothed posterior of the first ``T >= 2``
+        steps of the sequences ``rows`` (default all): ``(len(rows), n, T)`` point indices (see
+        :func:`sample_paths`)."""
+        m = self.m
+        arrays = [self.points(T), self.likelihoods(T), *(p.upto(T - 1) for p in self._pairs)]
+        if rows is not None:
+            arrays = [a[rows] for a in arrays]
+        return _threaded(
+            sample_paths, 5, *arrays, T, n, seed, m.speed_edges, m.headings, m.heading_slopes,
+            m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+        )  # fmt: skip
+
     def smooth(self, lengths: list[int]) -> list[np.ndarray]:
         """Smoothed log marginals ``(B, T, K)`` of the first ``T`` steps given those ``T`` steps,
         for each ``T`` in ``lengths``."""
@@ -286,6 +304,14 @@ class CandidateFilter:
         Metres (plus the track's step length per step) a step whose fingerprint says little may
         lie from the nearest informative step before :meth:`smooth` puts it on their track
         (default :data:`VAGUE_GATE`; None: never).
+    memory : MotionMemory, optional
+        The measured dependence of an acceleration on the one before it (fitted; default none):
+        :meth:`smooth` then weighs ``memory_paths`` paths drawn from each sub-cell beam's
+        smoothed posterior by it and moves the sub-cell means by the difference between the
+        weighted and the plain mean of the paths (the smoother one order higher, by importance
+        sampling with the plain mean as control variate).
+    memory_paths : int
+        Paths drawn per user, prefix and motion model.
     """
 
     def __init__(
@@ -302,9 +328,15 @@ class CandidateFilter:
         alternative_prior: float = ALTERNATIVE_PRIOR,
         vague_gate: float | None = VAGUE_GATE,
         fine_weighed: tuple[int, ...] = (),
+        memory: MotionMemory | None = None,
+        memory_paths: int = MEMORY_PATHS,
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
         self.vague_gate = vague_gate
+        self.memory = memory if memory is not None and bool(memory.fitted) else None
+        if memory_paths < 1:
+            raise ValueError(f"memory_paths must be >= 1, got {memory_paths}")
+        self.memory_paths = int(memory_paths)
         self._models = [_Hypothesis(motion, motion_fine, beam, fine_beam)]
         alternatives = [alternative] if isinstance(alternative, tuple) else list(alternative or [])
         if alternatives:
@@ -410,6 +442,20 @@ class CandidateFilter:
         fxy = (cxy[:, :, None] + self._offsets).reshape(B, -1, 2)
         return fxy, np.repeat(clp, n, axis=1)
 
+    def _memory_shift(self, fine: _Beam, T: int, rows: np.ndarray) -> np.ndarray:
+        """``(B, T, 2)`` grid units: for the users ``rows``, the mean of a sub-cell beam's paths
+        weighed by the memory less their plain mean (see
+        :class:`~estimation.smoothing.memory.MotionMemory`); zero for the others."""
+        assert self.memory is not None
+        xy = fine.points(T)
+        out = np.zeros((xy.shape[0], T, 2))
+        if len(rows):
+            idx = fine.sample(T, self.memory_paths, rows)
+            mem = self.memory
+            ratio, edges = mem.log_ratio.double().numpy(), mem.edges.numpy()
+            out[rows] = _threaded(memory_shift, 2, xy[rows], idx, ratio, mem.n_sub, edges, mem.reach)
+        return out
+
     def smooth(self, T: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """What the network reads for the first ``T`` steps (default all), given only those.
 
@@ -421,7 +467,8 @@ class CandidateFilter:
             Step-wise log posterior under a flat prior, the smoothed random-walk posteriors at
             each step scale, then the smoothed constant-velocity posterior (averaged over the
             motion models); clipped at -30.
-        fine : (B, T, 2) float32, metres; smoothed positions (sub-cell posterior means). A step whose
+        fine : (B, T, 2) float32, metres; smoothed positions (sub-cell posterior means, moved by
+            the acceleration memory where there is one and ``T >= 4``). A step whose
             fingerprint says little and which lies farther than ``vague_gate`` metres (plus the
             track's step length per step) from the nearest informative step is put on the track
             of the informative steps around it.
@@ -435,12 +482,15 @@ class CandidateFilter:
         for T in lengths:
             if not 1 <= T <= self.steps:
                 raise ValueError(f"can smooth 1..{self.steps} steps, not {T}")
-        per_model = [self._smooth_one(h, lengths) for h in self._models]
+        weights = [self.model_weights(T) for T in lengths]
+        per_model = [
+            self._smooth_one(h, lengths, [w[:, i] for w in weights]) for i, h in enumerate(self._models)
+        ]
         out = []
         for n, T in enumerate(lengths):
             xy = torch.from_numpy(self.cells.points(T)).float()
             lp = torch.from_numpy(self.cells.likelihoods(T)).float()
-            w = torch.from_numpy(self.model_weights(T))[:, None, None]  # (B, 1, 1, n_models)
+            w = torch.from_numpy(weights[n])[:, None, None]  # (B, 1, 1, n_models)
             p = torch.zeros(xy.shape[:3], dtype=torch.float64)
             fine = torch.zeros(xy.shape[0], T, 2, dtype=torch.float64)
             for i, one in enumerate(per_model):
@@ -469,9 +519,12 @@ class CandidateFilter:
         assert self._trans is not None
         return self._trans
 
-    def _smooth_one(self, h: _Hypothesis, lengths: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    def _smooth_one(
+        self, h: _Hypothesis, lengths: list[int], weight: list[np.ndarray]
+    ) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """One motion model's smoothed cell marginals ``(B, T, k)`` and positions ``(B, T, 2)``
-        metres, float64, for each prefix length ``T`` in ``lengths``."""
+        metres, float64, for each prefix length ``T`` in ``lengths``, given its posterior weight
+        ``(B,)`` for each (the memory moves only the users it counts for)."""
         cells = h.cells.smooth(lengths)
         fines = h.fine.smooth(lengths) if h.fine is not None else None
         out = []
@@ -485,7 +538,10 @@ class CandidateFilter:
             # were chosen before the later steps were seen; the smoothed mass of the other cells
             # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
             w = np.exp(fines[n])
-            sub = torch.from_numpy((w[..., None] * h.fine.points(T)).sum(2) * self.spacing)
+            sub = (w[..., None] * h.fine.points(T)).sum(2)
+            if self.memory is not None and T >= 4:
+                sub = sub + self._memory_shift(h.fine, T, np.flatnonzero(weight[n] >= MEMORY_WEIGHT))
+            sub = torch.from_numpy(sub * self.spacing)
             inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
             mass = (p * inside).sum(-1, keepdim=True)
             rest = (p * (1 - inside))[..., None] * xy

@@ -1,0 +1,210 @@
+"""Acceleration memory: how a step's change of displacement depends on the change before it.
+
+The sub-cell smoother scores every step's acceleration alone (:class:`~estimation.smoothing.motion.MotionTable`),
+a Markov chain of one order over pairs of lattice points. A user snapped to the lattice crosses
+lattice points in a pattern set by its exact speed and heading: a pedestrian at 1.8 m/s (5.4
+lattice steps of 1/3 m per step) goes 5, 6, 5, 5, 6, ... steps, so one acceleration of +1 is
+followed by -1 or 0, never by another +1, which a table of single accelerations cannot tell from a
+user who speeds up. :class:`MotionMemory` measures, on the training trajectories, the log ratio
+
+    log p(a_t | a_t-1, band) - log p(a_t | band)
+
+for small accelerations (lattice steps within +-:data:`MEMORY_REACH` per axis) in the quarter
+turn of the displacement between them, per speed band. :class:`~estimation.smoothing.online.CandidateFilter`
+weighs paths drawn from the smoothed pair posterior (:func:`~estimation.smoothing.beam.sample_paths`)
+by the sum of these ratios along them: importance sampling of the smoother one order higher.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from mmwsim._jit import njit
+
+from .motion import SUBCELLS
+
+__all__ = ["MEMORY_EDGES", "MEMORY_PATHS", "MEMORY_REACH", "MEMORY_WEIGHT", "MotionMemory", "memory_shift"]
+
+MEMORY_REACH = 2  # lattice steps per axis of the accelerations told apart; larger ones share a code
+# Inner speed-band edges, lattice steps per step (1/3 m on a 1 m grid): standing, walking,
+# cycling, slow, steady and fast driving.
+MEMORY_EDGES = (1.5, 4.5, 9.0, 15.0, 21.0, 30.0)
+# Paths drawn per user, prefix and motion model. 128, 512 and 2048 took 300 seen-area users per
+# kind of the default data set to 0.372, 0.371 and 0.371 m (0.378 without memory; 512 cost 10 %
+# more prediction time, docs/estimation.md).
+MEMORY_PATHS = 512
+# A motion model's posterior weight below which the filter does not weigh its paths for a user:
+# its share of the user's track is too small for the memory's move (centimetres) to show.
+MEMORY_WEIGHT = 1e-3
+
+
+@njit(cache=True, inline="always")
+def _code(ax, ay, reach):
+    """An acceleration's code: ``(ax + reach) (2 reach + 1) + ay + reach`` within ``+-reach``
+    lattice steps per axis, else the one code of the large ones, ``(2 reach + 1)^2``."""
+    w = 2 * reach + 1
+    if abs(ax) > reach or abs(ay) > reach:
+        return w * w
+    return (ax + reach) * w + ay + reach
+
+
+@njit(cache=True, inline="always")
+def _triple(x0, y0, x1, y1, x2, y2, x3, y3, n_sub, edges, reach):
+    """Speed band and the codes of both accelerations of four consecutive lattice points (grid
+    units), turned by the quarter turn that brings the displacement between them into ``x > 0,
+    y >= 0`` (as :class:`MotionTable`'s lattice frame turns them)."""
+    # the three displacements in lattice steps (the middle one d), and the two accelerations
+    px, py = round((x1 - x0) * n_sub), round((y1 - y0) * n_sub)
+    dx, dy = round((x2 - x1) * n_sub), round((y2 - y1) * n_sub)
+    nx, ny = round((x3 - x2) * n_sub), round((y3 - y2) * n_sub)
+    a0x, a0y, a1x, a1y = dx - px, dy - py, nx - dx, ny - dy
+    # (cos, sin) of the quarter turn (none for no displacement)
+    if (dx > 0 and dy >= 0) or (dx == 0 and dy == 0):
+        c, s = 1, 0
+    elif dx <= 0 and dy > 0:
+        c, s = 0, -1
+    elif dx < 0 and dy <= 0:
+        c, s = -1, 0
+    else:
+        c, s = 0, 1
+    speed = math.sqrt(dx * dx + dy * dy)
+    band = 0
+    while band < len(edges) and edges[band] < speed:
+        band += 1
+    c0 = _code(int(c * a0x - s * a0y), int(s * a0x + c * a0y), reach)
+    c1 = _code(int(c * a1x - s * a1y), int(s * a1x + c * a1y), reach)
+    return band, c0, c1
+
+
+@njit(cache=True)
+def _codes(u, n_sub, edges, reach):
+    """``(n, L - 3)`` flat indices ``(band, code before, code after)`` into the ratio table of
+    every four consecutive points of lattice paths ``u (n, L, 2)`` grid units."""
+    n, L = u.shape[0], u.shape[1]
+    w = 2 * reach + 1
+    n_code = w * w + 1
+    out = np.empty((n, max(L - 3, 0)), np.int64)
+    for i in range(n):
+        for t in range(L - 3):
+            band, c0, c1 = _triple(
+                u[i, t, 0], u[i, t, 1], u[i, t + 1, 0], u[i, t + 1, 1],
+                u[i, t + 2, 0], u[i, t + 2, 1], u[i, t + 3, 0], u[i, t + 3, 1], n_sub, edges, reach,
+            )  # fmt: skip
+            out[i, t] = (band * n_code + c0) * n_code + c1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def memory_shift(xy, idx, log_ratio, n_sub, edges, reach):
+    """The mean of paths weighed by the memory less their plain mean: ``(B, T, 2)`` grid units.
+
+    Parameters
+    ----------
+    xy : (B, T', K, 2) float64; the steps' lattice points, grid units
+    idx : (B, n, T) int64; the paths' point indices (:func:`~estimation.smoothing.beam.sample_paths`)
+    log_ratio : (n_band, n_code, n_code) float64; :attr:`MotionMemory.log_ratio`
+    n_sub, edges, reach : the lattice and the memory's bands and reach
+    """
+    B, n, T = idx.shape
+    out = np.zeros((B, T, 2))
+    lw = np.empty(n)
+    for b in range(B):
+        top = -np.inf
+        for j in range(n):
+            acc = 0.0
+            for t in range(T - 3):
+                p0, p1, p2, p3 = idx[b, j, t], idx[b, j, t + 1], idx[b, j, t + 2], idx[b, j, t + 3]
+                band, c0, c1 = _triple(
+                    xy[b, t, p0, 0], xy[b, t, p0, 1], xy[b, t + 1, p1, 0], xy[b, t + 1, p1, 1],
+                    xy[b, t + 2, p2, 0], xy[b, t + 2, p2, 1], xy[b, t + 3, p3, 0], xy[b, t + 3, p3, 1],
+                    n_sub, edges, reach,
+                )  # fmt: skip
+                acc += log_ratio[band, c0, c1]
+            lw[j] = acc
+            top = max(top, acc)
+        tot = 0.0
+        for j in range(n):
+            lw[j] = math.exp(lw[j] - top)
+            tot += lw[j]
+        for j in range(n):
+            w = lw[j] / tot - 1.0 / n
+            for t in range(T):
+                p = idx[b, j, t]
+                out[b, t, 0] += w * xy[b, t, p, 0]
+                out[b, t, 1] += w * xy[b, t, p, 1]
+    return out
+
+
+class MotionMemory(nn.Module):
+    """The measured log ratio of an acceleration's density given the one before it to its density
+    alone, on the sub-cell lattice (see the module docstring). A buffer, so it travels with the
+    network's ``state_dict``; zero (no memory) until :meth:`fit`.
+
+    Parameters
+    ----------
+    reach : int
+        Accelerations within ``+-reach`` lattice steps per axis are told apart.
+    edges : sequence of float
+        Inner speed-band edges, lattice steps per step.
+    n_sub : int
+        Lattice points per grid spacing and axis.
+    """
+
+    def __init__(
+        self, reach: int = MEMORY_REACH, edges: tuple[float, ...] = MEMORY_EDGES, n_sub: int = SUBCELLS
+    ):
+        super().__init__()
+        self.reach, self.n_sub = int(reach), int(n_sub)
+        n_code = (2 * self.reach + 1) ** 2 + 1
+        self.register_buffer("edges", torch.tensor(edges, dtype=torch.float64))
+        self.register_buffer("log_ratio", torch.zeros(len(edges) + 1, n_code, n_code))
+        self.register_buffer("fitted", torch.tensor(False))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        if prefix + "fitted" not in state_dict:
+            # a model saved before it had a memory keeps none
+            for name, buf in self._buffers.items():
+                state_dict[prefix + name] = buf
+        # the saved table's reach and bands are its own
+        ratio, edges = state_dict[prefix + "log_ratio"], state_dict[prefix + "edges"]
+        self.log_ratio, self.edges = torch.empty_like(ratio), torch.empty_like(edges)
+        self.reach = (math.isqrt(ratio.shape[1] - 1) - 1) // 2
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def flat_codes(self, u: np.ndarray) -> np.ndarray:
+        """Flat indices into :attr:`log_ratio` of every four consecutive points of lattice paths
+        ``u (..., L, 2)`` grid units: ``(..., L - 3)``."""
+        u = np.asarray(u, dtype=np.float64)
+        flat = np.ascontiguousarray(u.reshape(-1, *u.shape[-2:]))
+        codes = _codes(flat, self.n_sub, self.edges.numpy(), self.reach)
+        return codes.reshape(*u.shape[:-2], max(u.shape[-2] - 3, 0))
+
+    def fit(self, u: np.ndarray, prior: float = 0.5) -> MotionMemory:
+        """Measure the ratios on trajectories ``u (n, L >= 4, 2)`` grid units snapped to the
+        lattice (as the sub-cell table is), counts plus ``prior`` per cell. Returns ``self``."""
+        u = np.asarray(u, dtype=np.float64)
+        if u.ndim != 3 or u.shape[2] != 2 or u.shape[1] < 4 or not len(u):
+            raise ValueError(f"need lattice positions of shape (n, L >= 4, 2), got {u.shape}")
+        if not np.isfinite(u).all():
+            raise ValueError("positions hold NaN or infinite values")
+        n_band, n_code = self.log_ratio.shape[:2]
+        h = np.bincount(self.flat_codes(u).ravel(), minlength=n_band * n_code * n_code)
+        h = h.reshape(n_band, n_code, n_code).astype(np.float64) + prior
+        given = h / h.sum(2, keepdims=True)
+        alone = h.sum(1) / h.sum((1, 2))[:, None]
+        ratio = np.log(given) - np.log(alone)[:, None, :]
+        # the large accelerations (turns, stops) keep their single-step density
+        ratio[:, -1, :] = 0.0
+        ratio[:, :, -1] = 0.0
+        self.log_ratio.copy_(torch.from_numpy(ratio).float())
+        self.fitted.fill_(True)
+        return self
+
+    def log_weight(self, u: np.ndarray) -> np.ndarray:
+        """Sum of the log ratios along lattice paths ``u (..., L, 2)`` grid units: ``(...)``
+        (zeros for ``L < 4``)."""
+        return self.log_ratio.double().numpy().ravel()[self.flat_codes(u)].sum(-1)

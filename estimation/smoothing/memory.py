@@ -170,9 +170,10 @@ class MotionMemory(nn.Module):
             for name, buf in self._buffers.items():
                 state_dict[prefix + name] = buf
         # the saved table's reach and bands are its own
-        ratio, edges = state_dict[prefix + "log_ratio"], state_dict[prefix + "edges"]
-        self.log_ratio, self.edges = torch.empty_like(ratio), torch.empty_like(edges)
-        self.reach = (math.isqrt(ratio.shape[1] - 1) - 1) // 2
+        ratio, edges = state_dict.get(prefix + "log_ratio"), state_dict.get(prefix + "edges")
+        if ratio is not None and edges is not None and ratio.ndim == 3:
+            self.log_ratio, self.edges = torch.empty_like(ratio), torch.empty_like(edges)
+            self.reach = (math.isqrt(ratio.shape[1] - 1) - 1) // 2
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def flat_codes(self, u: np.ndarray) -> np.ndarray:

@@ -345,7 +345,7 @@ class Estimator(nn.Module):
         )
         return CandidateFilter(
             *self._lane_motion(), step, net.k, alternative=alternative, fine_weighed=fine_weighed,
-            memory=getattr(net, "memory", None),
+            memory=net.memory,
         )  # fmt: skip
 
     def _tables_digest(self, *extra: np.ndarray) -> bytes:

@@ -131,7 +131,8 @@ def test_the_filter_moves_its_sub_cell_tracks_by_the_memory_and_only_by_it():
     assert np.array_equal(some[[1, 4]], shift[[1, 4]]) and not some[[0, 2, 3, 5]].any()
     # prefixes too short for a pair of accelerations are not moved
     for T in (1, 2, 3):
-        assert torch.equal(_lattice_filter(fitted).run(xy, score).smooth(T)[2], plain_prefix(xy, score, T))
+        plain_prefix = _lattice_filter(None).run(xy, score).smooth(T)[2]
+        assert torch.equal(_lattice_filter(fitted).run(xy, score).smooth(T)[2], plain_prefix)
     # a memory that says nothing (fitted, all ratios zero) moves nothing: the paths' weighted
     # mean less their plain mean is zero, whatever was drawn
     silent = MotionMemory().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
@@ -141,10 +142,6 @@ def test_the_filter_moves_its_sub_cell_tracks_by_the_memory_and_only_by_it():
     assert _lattice_filter(MotionMemory()).memory is None
     with pytest.raises(ValueError, match="memory_paths"):
         _lattice_filter(fitted, memory_paths=0)
-
-
-def plain_prefix(xy, score, T):
-    return _lattice_filter(None).run(xy, score).smooth(T)[2]
 
 
 def test_the_memorys_tracks_are_the_same_whatever_the_batch_and_the_threads():

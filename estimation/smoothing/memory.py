@@ -25,6 +25,7 @@ from torch import nn
 
 from mmwsim._jit import njit
 
+from .beam import _frame
 from .motion import SUBCELLS
 
 __all__ = ["MEMORY_EDGES", "MEMORY_PATHS", "MEMORY_REACH", "MEMORY_WEIGHT", "MotionMemory", "memory_shift"]
@@ -53,30 +54,19 @@ def _code(ax, ay, reach):
 
 
 @njit(cache=True, inline="always")
-def _triple(x0, y0, x1, y1, x2, y2, x3, y3, n_sub, edges, reach):
+def _triple(x0, y0, x1, y1, x2, y2, x3, y3, n_sub, edges, reach, no_slopes):
     """Speed band and the codes of both accelerations of four consecutive lattice points (grid
     units), turned by the quarter turn that brings the displacement between them into ``x > 0,
-    y >= 0`` (as :class:`MotionTable`'s lattice frame turns them)."""
+    y >= 0``: :func:`~estimation.smoothing.beam._frame`'s lattice frame with one heading bin
+    (``no_slopes``: an empty array), whose class is then the speed band."""
     # the three displacements in lattice steps (the middle one d), and the two accelerations
     px, py = round((x1 - x0) * n_sub), round((y1 - y0) * n_sub)
     dx, dy = round((x2 - x1) * n_sub), round((y2 - y1) * n_sub)
     nx, ny = round((x3 - x2) * n_sub), round((y3 - y2) * n_sub)
     a0x, a0y, a1x, a1y = dx - px, dy - py, nx - dx, ny - dy
-    # (cos, sin) of the quarter turn (none for no displacement)
-    if (dx > 0 and dy >= 0) or (dx == 0 and dy == 0):
-        c, s = 1, 0
-    elif dx <= 0 and dy > 0:
-        c, s = 0, -1
-    elif dx < 0 and dy <= 0:
-        c, s = -1, 0
-    else:
-        c, s = 0, 1
-    speed = math.sqrt(dx * dx + dy * dy)
-    band = 0
-    while band < len(edges) and edges[band] < speed:
-        band += 1
-    c0 = _code(int(c * a0x - s * a0y), int(s * a0x + c * a0y), reach)
-    c1 = _code(int(c * a1x - s * a1y), int(s * a1x + c * a1y), reach)
+    f00, f01, f10, f11, band = _frame(float(dx), float(dy), edges, 1, no_slopes)
+    c0 = _code(round(f00 * a0x + f01 * a0y), round(f10 * a0x + f11 * a0y), reach)
+    c1 = _code(round(f00 * a1x + f01 * a1y), round(f10 * a1x + f11 * a1y), reach)
     return band, c0, c1
 
 
@@ -88,11 +78,13 @@ def _codes(u, n_sub, edges, reach):
     w = 2 * reach + 1
     n_code = w * w + 1
     out = np.empty((n, max(L - 3, 0)), np.int64)
+    no_slopes = np.empty(0)
     for i in range(n):
         for t in range(L - 3):
             band, c0, c1 = _triple(
                 u[i, t, 0], u[i, t, 1], u[i, t + 1, 0], u[i, t + 1, 1],
                 u[i, t + 2, 0], u[i, t + 2, 1], u[i, t + 3, 0], u[i, t + 3, 1], n_sub, edges, reach,
+                no_slopes,
             )  # fmt: skip
             out[i, t] = (band * n_code + c0) * n_code + c1
     return out
@@ -112,6 +104,7 @@ def memory_shift(xy, idx, log_ratio, n_sub, edges, reach):
     B, n, T = idx.shape
     out = np.zeros((B, T, 2))
     lw = np.empty(n)
+    no_slopes = np.empty(0)
     for b in range(B):
         top = -np.inf
         for j in range(n):
@@ -121,7 +114,7 @@ def memory_shift(xy, idx, log_ratio, n_sub, edges, reach):
                 band, c0, c1 = _triple(
                     xy[b, t, p0, 0], xy[b, t, p0, 1], xy[b, t + 1, p1, 0], xy[b, t + 1, p1, 1],
                     xy[b, t + 2, p2, 0], xy[b, t + 2, p2, 1], xy[b, t + 3, p3, 0], xy[b, t + 3, p3, 1],
-                    n_sub, edges, reach,
+                    n_sub, edges, reach, no_slopes,
                 )  # fmt: skip
                 acc += log_ratio[band, c0, c1]
             lw[j] = acc

@@ -553,7 +553,9 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert (fine - subcell_mean(xy, post[..., 0], post[..., -1], lattice)).norm(dim=-1).max() < 0.05
     # training measured the acceleration memory on the same lattice positions; the filter weighs
     # its paths by it, which moves the sub-cell tracks by a little
-    assert torch.equal(est.net.memory.log_ratio, MotionMemory().fit(u).log_ratio)
+    measured = MotionMemory().fit(u)
+    assert torch.equal(est.net.memory.log_ratio, measured.log_ratio)
+    assert torch.equal(est.net.memory.log_ratio_two, measured.log_ratio_two)
     moved = (est.candidate_filter().run(*found).smooth()[2] - fine).norm(dim=-1)
     assert 0 < moved.max() < 0.5
     # tables measured on fast users too (bands of 6 per step and up with samples) give the

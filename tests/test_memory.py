@@ -45,11 +45,32 @@ def test_a_steady_users_pattern_makes_a_second_speed_up_unlikely():
     assert mem.log_weight(keep[:, :3]).shape == (1,) and mem.log_weight(keep[:, :3])[0] == 0.0
 
 
+def test_two_accelerations_back_tell_a_pattern_one_back_cannot():
+    # at 1.75 m/s (5.25 lattice steps per step) a walker goes 5, 5, 5, 6, ...: accelerations 0,
+    # 0, +1, -1. After 0 comes 0 or +1; after -1, 0 only 0, and after 0, 0 only +1.
+    mem = MotionMemory().fit(_steady(speed=1.75))
+    band = int(np.searchsorted(mem.edges.numpy(), 5.25))
+    one, two = mem.log_ratio[band], mem.log_ratio_two[band]
+    assert one[_code(0, 0), _code(0, 0)] > -0.5 and one[_code(0, 0), _code(1, 0)] > 0.5
+    assert two[_code(-1, 0), _code(0, 0), _code(0, 0)] > 0.5
+    assert two[_code(-1, 0), _code(0, 0), _code(1, 0)] < -2.0
+    assert two[_code(0, 0), _code(0, 0), _code(1, 0)] > 0.5
+    assert two[_code(0, 0), _code(0, 0), _code(0, 0)] < -2.0
+    # a path that keeps the four-step pattern outweighs one that moves its 6 a step early, which
+    # the acceleration before alone does not tell (it even finds the early 6 more likely)
+    keep = np.cumsum([[0, 0], [5, 0], [5, 0], [5, 0], [6, 0], [5, 0], [5, 0], [5, 0], [6, 0]], 0)[None] / 3.0
+    early = np.cumsum([[0, 0], [5, 0], [5, 0], [5, 0], [6, 0], [5, 0], [5, 0], [6, 0], [5, 0]], 0)[None] / 3.0
+    assert mem.log_weight(keep)[0] > mem.log_weight(early)[0] + 3.0
+    alone = MotionMemory().fit(_steady(speed=1.75))
+    alone.log_ratio_two.zero_()
+    assert alone.log_weight(keep)[0] < alone.log_weight(early)[0]
+
+
 def test_the_memory_is_the_same_however_the_lattice_is_turned():
     u = _steady(seed=1)
     turned = u[..., ::-1] * [1.0, -1.0]  # a quarter turn: (x, y) -> (y, -x)
     a, b = MotionMemory().fit(u), MotionMemory().fit(turned)
-    assert torch.equal(a.log_ratio, b.log_ratio)
+    assert torch.equal(a.log_ratio, b.log_ratio) and torch.equal(a.log_ratio_two, b.log_ratio_two)
     path = u[:3]
     np.testing.assert_allclose(a.log_weight(path), a.log_weight(path[..., ::-1] * [-1.0, 1.0]))
 
@@ -72,6 +93,14 @@ def test_an_unfitted_memory_weighs_nothing_and_bad_positions_are_refused():
     fresh.load_state_dict(wide.state_dict())
     assert fresh.reach == 3 and torch.equal(fresh.log_ratio, wide.log_ratio)
     np.testing.assert_array_equal(fresh.log_weight(_steady(5)), wide.log_weight(_steady(5)))
+    # one saved before it looked two accelerations back looks one back only
+    old = {k: v for k, v in MotionMemory().fit(_steady()).state_dict().items() if k != "log_ratio_two"}
+    fresh.load_state_dict(old)
+    assert (
+        fresh.reach == 2 and torch.equal(fresh.log_ratio, old["log_ratio"]) and not fresh.log_ratio_two.any()
+    )
+    with pytest.raises(ValueError, match="backoff"):
+        MotionMemory().fit(_steady(), backoff=0.0)
 
 
 def test_paths_drawn_from_an_unpruned_beam_follow_the_smoothed_marginals():
@@ -137,6 +166,7 @@ def test_the_filter_moves_its_sub_cell_tracks_by_the_memory_and_only_by_it():
     # mean less their plain mean is zero, whatever was drawn
     silent = MotionMemory().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
     silent.log_ratio.zero_()
+    silent.log_ratio_two.zero_()
     assert torch.equal(_lattice_filter(silent).run(xy, score).smooth()[2], plain[2])
     # an unfitted memory is none
     assert _lattice_filter(MotionMemory()).memory is None

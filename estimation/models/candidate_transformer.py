@@ -127,7 +127,7 @@ class CandidateTransformer(nn.Module):
         # they existed, or trained without that kind).
         self.motion_kind = MotionTable()
         self.motion_kind_fine = MotionTable.lattice()
-        # How an acceleration on the lattice depends on the one before it, measured on the same
+        # How an acceleration on the lattice depends on the one or two before it, measured on the same
         # trajectories (none in models saved before it existed).
         self.memory = MotionMemory()
         self.register_buffer("grid_step", torch.tensor(1.0))

@@ -22,9 +22,9 @@ position (the filtered sub-cell mean). :meth:`CandidateFilter.smooth` turns the 
 any prefix into the smoothed candidates, posteriors and positions the network reads, by one
 backward pass: a prefix's result never depends on the steps after it. With an acceleration memory
 (:class:`~estimation.smoothing.memory.MotionMemory`) the smoothed sub-cell positions are those of
-the smoother one order higher, by importance sampling: paths drawn from each sub-cell beam's
+the smoother one or two orders higher, by importance sampling: paths drawn from each sub-cell beam's
 posterior (:func:`~estimation.smoothing.beam.sample_paths`) are weighed by how the memory rates
-each acceleration after the one before it.
+each acceleration after the one or two before it.
 """
 
 from __future__ import annotations
@@ -305,10 +305,10 @@ class CandidateFilter:
         lie from the nearest informative step before :meth:`smooth` puts it on their track
         (default :data:`VAGUE_GATE`; None: never).
     memory : MotionMemory, optional
-        The measured dependence of an acceleration on the one before it (fitted; default none):
+        The measured dependence of an acceleration on the one or two before it (fitted; default none):
         :meth:`smooth` then weighs ``memory_paths`` paths drawn from each sub-cell beam's
         smoothed posterior by it and moves the sub-cell means by the difference between the
-        weighted and the plain mean of the paths (the smoother one order higher, by importance
+        weighted and the plain mean of the paths (the smoother one or two orders higher, by importance
         sampling with the plain mean as control variate).
     memory_paths : int
         Paths drawn per user, prefix and motion model.
@@ -452,8 +452,10 @@ class CandidateFilter:
         if len(rows):
             idx = fine.sample(T, self.memory_paths, rows)
             mem = self.memory
-            ratio, edges = mem.log_ratio.double().numpy(), mem.edges.numpy()
-            out[rows] = _threaded(memory_shift, 2, xy[rows], idx, ratio, mem.n_sub, edges, mem.reach)
+            one, two = mem.log_ratio.double().numpy(), mem.log_ratio_two.double().numpy()
+            out[rows] = _threaded(
+                memory_shift, 2, xy[rows], idx, one, two, mem.n_sub, mem.edges.numpy(), mem.reach
+            )
         return out
 
     def smooth(self, T: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

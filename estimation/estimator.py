@@ -333,19 +333,22 @@ class Estimator(nn.Module):
         the tables of the training cyclists alone (:meth:`_kind_motion`) by the evidence of each
         user's fingerprints, for users who do not move like the training users as a whole.
         Where training measured it, the smoothed sub-cell tracks also weigh the acceleration
-        memory (:class:`~estimation.smoothing.memory.MotionMemory`)."""
+        memory (:class:`~estimation.smoothing.memory.MotionMemory`), but for the tables of
+        steady users at other speeds, whose lattice patterns it never saw."""
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
         if not bool(net.motion.fitted):  # the hand-set motion
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
         step = float(net.grid_step)
-        alternative, fine_weighed = (
-            self._alternative_motion() if (self.robust_motion if robust is None else robust) else (None, ())
+        alternative, fine_weighed, steady = (
+            self._alternative_motion()
+            if (self.robust_motion if robust is None else robust)
+            else (None, (), ())
         )
         return CandidateFilter(
             *self._lane_motion(), step, net.k, alternative=alternative, fine_weighed=fine_weighed,
-            memory=net.memory,
+            memory=net.memory, memory_skips=steady,
         )  # fmt: skip
 
     def _tables_digest(self, *extra: np.ndarray) -> bytes:
@@ -385,17 +388,20 @@ class Estimator(nn.Module):
             return None
         return self._streets
 
-    def _alternative_motion(self) -> tuple[list[tuple[MotionTable, MotionTable | None]], tuple[int, ...]]:
+    def _alternative_motion(
+        self,
+    ) -> tuple[list[tuple[MotionTable, MotionTable | None]], tuple[int, ...], tuple[int, ...]]:
         """The alternatives the filter weighs the measured tables against: their broadened
         copies, the tables for steady users at other speeds (:meth:`_steady_motion`) and those of
-        one kind alone (:meth:`_kind_motion`) where the model has them; and the indices of those
+        one kind alone (:meth:`_kind_motion`) where the model has them; the indices of those
         the filter tells from the measured tables by their sub-cell evidence
-        (``CandidateFilter(fine_weighed=...)``)."""
+        (``CandidateFilter(fine_weighed=...)``); and that of the steady users at other speeds,
+        whose paths the acceleration memory does not weigh (``CandidateFilter(memory_skips=...)``)."""
         steady = self._steady_motion()
         kind = [self._kind_motion()] if bool(self.net.motion_kind.fitted) else []
         if steady is None:
-            return [self._broadened_motion(), *kind], ()
-        return [self._broadened_motion(), steady, *kind], ((1,) if self._scaled_fine() else ())
+            return [self._broadened_motion(), *kind], (), ()
+        return [self._broadened_motion(), steady, *kind], ((1,) if self._scaled_fine() else ()), (1,)
 
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The tables measured on the training users of one kind alone

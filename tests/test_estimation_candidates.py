@@ -582,6 +582,8 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert torch.equal(steady[0].log_accel_table, est.net.motion.speed_pooled(6.0).log_accel_table)
     f = est.candidate_filter()
     assert f._fine_group == [0, 2] and f.run(*found).model_weights().shape == (4, 3)
+    # the memory weighs the paths of every model but the steady users' at other speeds
+    assert [h.remembers for h in f._models] == [True, True, False]
     # a model saved before the scaled table existed loads without it and weighs the pooled tables
     # by their cell-level evidence, as it did
     saved = torch.load(tmp_path / "run" / "model.pt", weights_only=True)

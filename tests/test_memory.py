@@ -174,6 +174,29 @@ def test_the_filter_moves_its_sub_cell_tracks_by_the_memory_and_only_by_it():
         _lattice_filter(fitted, memory_paths=0)
 
 
+def test_the_memory_leaves_the_paths_of_the_models_it_skips_unweighed():
+    xy, score = _candidates(B=6, T=7, S=12)
+    xy = torch.round(xy)
+    tr = toy_sequence_set(64, 6, seed=0)
+    u = snap_to_lattice(tr.positions - tr.grid_xy.min(0))
+    lattice, mem = MotionTable.lattice().fit(u), MotionMemory().fit(u)
+
+    def track(memory, skips=()):
+        # two identical models: their evidence is the same, so their weights are their priors
+        f = CandidateFilter(
+            MOTION, lattice, 1.0, k=8, beam=30, fine_k=3, fine_beam=60, vague_gate=None,
+            alternative=[(MOTION, lattice)], alternative_prior=0.3, memory=memory, memory_skips=skips,
+        )  # fmt: skip
+        return f.run(xy, score).smooth()[2].double()
+
+    plain, both, first = track(None), track(mem), track(mem, (0,))
+    assert (both - plain).abs().max() > 1e-3
+    # each model's paths move its share of the track; the skipped one's share stays put
+    torch.testing.assert_close(first - plain, 0.7 * (both - plain), atol=1e-5, rtol=0)
+    with pytest.raises(ValueError, match="memory_skips"):
+        track(mem, (1,))
+
+
 def test_the_memorys_tracks_are_the_same_whatever_the_batch_and_the_threads():
     xy, score = _candidates(B=40, T=6, S=12)
     xy = torch.round(xy)

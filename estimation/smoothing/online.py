@@ -254,6 +254,7 @@ class _Hypothesis:
         fitted = motion_fine is not None and bool(motion_fine.fitted)
         self.fine = _Beam(motion_fine, fine_beam) if fitted else None
         self.top: list[np.ndarray] = []  # (B, fine_k) cells split at every step
+        self.remembers = True  # whether the acceleration memory weighs its sub-cell paths
 
 
 _Models = tuple[MotionTable | MixtureMotion, MotionTable | None]  # a cell-level and a sub-cell model
@@ -312,6 +313,10 @@ class CandidateFilter:
         sampling with the plain mean as control variate).
     memory_paths : int
         Paths drawn per user, prefix and motion model.
+    memory_skips : sequence of int
+        Indices into ``alternative`` of models whose paths the memory does not weigh: motion at
+        speeds the training users did not keep (the speed-scaled tables), whose lattice
+        patterns the memory, measured at the training users' speeds, never saw.
     """
 
     def __init__(
@@ -330,6 +335,7 @@ class CandidateFilter:
         fine_weighed: tuple[int, ...] = (),
         memory: MotionMemory | None = None,
         memory_paths: int = MEMORY_PATHS,
+        memory_skips: tuple[int, ...] = (),
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
         self.vague_gate = vague_gate
@@ -353,6 +359,13 @@ class CandidateFilter:
                 f"fine_weighed {tuple(fine_weighed)}: indices into the {len(alternatives)} alternatives"
             )
         self._fine_group = [0] + [1 + i for i in picked] if picked else []
+        skips = [int(i) for i in memory_skips]
+        if any(not 0 <= i < len(alternatives) for i in skips):
+            raise ValueError(
+                f"memory_skips {tuple(memory_skips)}: indices into the {len(alternatives)} alternatives"
+            )
+        for i in skips:
+            self._models[1 + i].remembers = False
         if any(self._models[i].fine is None for i in self._fine_group):
             raise ValueError(
                 f"fine_weighed {tuple(fine_weighed)}: every model weighed by its sub-cell evidence, "
@@ -541,7 +554,7 @@ class CandidateFilter:
             # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
             w = np.exp(fines[n])
             sub = (w[..., None] * h.fine.points(T)).sum(2)
-            if self.memory is not None and T >= 4:
+            if self.memory is not None and h.remembers and T >= 4:
                 sub = sub + self._memory_shift(h.fine, T, np.flatnonzero(weight[n] >= MEMORY_WEIGHT))
             sub = torch.from_numpy(sub * self.spacing)
             inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)

@@ -126,7 +126,7 @@ def memory_shift(xy, idx, log_ratio, log_ratio_two, n_sub, edges, reach):
     ----------
     xy : (B, T', K, 2) float64; the steps' lattice points, grid units
     idx : (B, n, T) int64; the paths' point indices (:func:`~estimation.smoothing.beam.sample_paths`)
-    log_ratio, log_ratio_two : float64; :attr:`MotionMemory.log_ratio` ``(n_band, n_code, n_code)``
+    log_ratio, log_ratio_two : float32 or float64; :attr:`MotionMemory.log_ratio` ``(n_band, n_code, n_code)``
         and :attr:`MotionMemory.log_ratio_two` ``(n_band, n_code, n_code, n_code)``
     n_sub, edges, reach : the lattice and the memory's bands and reach
     """

@@ -465,10 +465,11 @@ class CandidateFilter:
         if len(rows):
             idx = fine.sample(T, self.memory_paths, rows)
             mem = self.memory
-            one, two = mem.log_ratio.double().numpy(), mem.log_ratio_two.double().numpy()
+            # the tables as stored (float32, no copy): the kernel sums them in float64
             out[rows] = _threaded(
-                memory_shift, 2, xy[rows], idx, one, two, mem.n_sub, mem.edges.numpy(), mem.reach
-            )
+                memory_shift, 2, xy[rows], idx, mem.log_ratio.numpy(), mem.log_ratio_two.numpy(),
+                mem.n_sub, mem.edges.numpy(), mem.reach,
+            )  # fmt: skip
         return out
 
     def smooth(self, T: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from mmwsim.constants import SIGMA_DB
+from mmwsim.trajectories import StreetNetwork, TrajectoryError
 
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
 from .data import Normaliser, SequenceSet
@@ -225,6 +226,11 @@ class Estimator(nn.Module):
         Whether a grid-reading network trained for forecasting carries its fast users (vehicles)
         on along the lanes its filter uses (:func:`~estimation.smoothing.forecast.forecast_tracks`)
         when predicting, instead of at their last velocity as in training (default True).
+    street_forecast : bool
+        Whether, in that forecast, fast users driving along a street of the attached data's
+        street map follow its streets, taking any onward street at a junction
+        (:func:`~estimation.smoothing.forecast.follow_streets`), instead of being carried through
+        the motion table (default True; only where :attr:`street_lanes` gives the lanes).
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
@@ -234,10 +240,12 @@ class Estimator(nn.Module):
         self.robust_motion = True
         self.street_lanes = True
         self.lane_forecast = True
+        self.street_forecast = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
         self._steady: tuple[bytes, tuple | None] | None = None  # (digest, _steady_motion's tables)
         self._lanes: tuple[bytes, tuple] | None = None  # (tables' and map's digest, lane copies)
+        self._street_net: tuple[bytes, StreetNetwork | None] | None = None  # (map's digest, graph)
         self.net = build_network(
             config.model,
             n_beams,
@@ -524,7 +532,22 @@ class Estimator(nn.Module):
         fine = self._lane_motion()[1] if self.uses_grid else None
         if fine is None or not bool(fine.fitted):
             return extrapolate(tracked, horizon)
-        return forecast_tracks(tracked, horizon, fine, float(self.net.grid_step))
+        return forecast_tracks(tracked, horizon, fine, float(self.net.grid_step), self._street_network())
+
+    def _street_network(self) -> StreetNetwork | None:
+        """The attached street map as a graph where :meth:`forecast` follows its streets (see
+        :attr:`street_forecast`), made again only when the map changes."""
+        streets = self._map_lanes() if self.street_forecast else None
+        if streets is None:
+            return None
+        key = hashlib.sha1(np.ascontiguousarray(streets[0]).tobytes()).digest()
+        if self._street_net is None or self._street_net[0] != key:
+            try:
+                graph: StreetNetwork | None = StreetNetwork.from_segments(streets[0])
+            except TrajectoryError:  # no piece left to drive along
+                graph = None
+            self._street_net = (key, graph)
+        return self._street_net[1]
 
     def save(self, path: str | os.PathLike, extra: dict[str, Any] | None = None) -> None:
         save_checkpoint(

@@ -320,8 +320,16 @@ def test_an_attached_street_map_gives_lanes_where_no_training_user_drove():
     used = est.candidate_filter(robust=False)._models[0]
     assert np.array_equal(used.cells.m.place[1], cells.log_place.float().numpy())
     assert np.array_equal(used.fine.m.place[1], fine.log_place.float().numpy())
+    # the forecast follows the map's streets, made into a graph once per map
+    graph = est._street_network()
+    assert graph is est._street_network() and np.array_equal(graph.lines(), street)
+    driver = torch.tensor([[[18.0, 20.0], [24.0, 20.0]]])  # 6 m per step, 7 m before the dead end
+    assert torch.allclose(est.forecast(driver, 2), torch.tensor([[[30.0, 20.0], [26.0, 20.0]]]))
+    est.street_forecast = False
+    assert est._street_network() is None
+    est.street_forecast = True
     est.street_lanes = False
-    assert est._lane_motion() == (net.motion, net.motion_fine)
+    assert est._lane_motion() == (net.motion, net.motion_fine) and est._street_network() is None
     est.street_lanes = True
     net.motion.drop_place()  # a model trained without place tables keeps none
     assert est._lane_motion() == (net.motion, net.motion_fine)

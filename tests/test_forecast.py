@@ -1,7 +1,9 @@
-"""Forecasts carried through the motion table (estimation.smoothing.forecast): drawn accelerations
-follow the table in either frame, vehicles follow their lanes round a corner where the constant
-velocity forecast leaves them, steady users are carried on exactly, and a user's forecast is its
-own whatever its batch."""
+"""Forecasts carried through the motion table or along the streets (estimation.smoothing.forecast):
+drawn accelerations follow the table in either frame, vehicles follow their lanes round a corner
+where the constant velocity forecast leaves them, steady users are carried on exactly, and a user's
+forecast is its own whatever its batch; along a street map, drivers keep their speed and their
+side of the centre line round a corner, split evenly at a junction, turn at a dead end, and users
+off the streets are carried by the table."""
 
 from __future__ import annotations
 
@@ -9,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from estimation.smoothing.forecast import carry, extrapolate, forecast_tracks
+from estimation.smoothing.forecast import STREET_REACH, carry, extrapolate, follow_streets, forecast_tracks
 from estimation.smoothing.motion import MotionTable, snap_to_lattice
+from mmwsim.trajectories import StreetNetwork, TrajectoryError
 
 SPEED = 6.0  # grid units per step: above the place tables' speed (5)
 
@@ -102,3 +105,82 @@ def test_only_fast_users_of_a_table_with_lanes_are_carried():
     # no lanes, or no velocity to carry: the constant-velocity forecast for all
     assert torch.equal(forecast_tracks(tracked, 3, MotionTable.lattice(), spacing), extrapolate(tracked, 3))
     assert torch.equal(forecast_tracks(tracked[:, -1:], 2, table, spacing), extrapolate(tracked[:, -1:], 2))
+
+
+# The L of _l_drives as a street map, and a crossing: four streets meeting at (40, 10).
+L_STREETS = np.array([[[0.0, 10.0], [40.0, 10.0]], [[40.0, 10.0], [40.0, 60.0]]])
+CROSS = np.array(
+    [
+        [[0.0, 10.0], [40.0, 10.0]],
+        [[40.0, 10.0], [80.0, 10.0]],
+        [[40.0, 10.0], [40.0, 60.0]],
+        [[40.0, 10.0], [40.0, -40.0]],
+    ]
+)
+
+
+def test_street_segments_make_the_network_they_came_from():
+    net = StreetNetwork.from_segments(CROSS)
+    assert len(net.nodes) == 5 and len(net.edges) == 4
+    assert sorted(net.degree.tolist()) == [1, 1, 1, 1, 4]
+    again = StreetNetwork.from_segments(net.lines())
+    assert np.array_equal(again.nodes, net.nodes) and np.array_equal(again.edges, net.edges)
+    for bad, match in ((np.zeros((2, 3, 2)), "shape"), (np.full((1, 2, 2), np.inf), "NaN")):
+        with pytest.raises(TrajectoryError, match=match):
+            StreetNetwork.from_segments(bad)
+
+
+def test_drivers_follow_the_street_round_a_corner_at_their_speed():
+    net = StreetNetwork.from_segments(L_STREETS)
+    drives = _l_drives(64, 7, 1)
+    seen, future = drives[:, :4], drives[:, 4:]
+    out, on = follow_streets(net, seen[:, -2], seen[:, -1], 3)
+    assert on.all() and out.shape == (64, 3, 2)
+    # one onward street: the distance along the centre line is exact, round the corner too
+    assert np.abs(out - future).max() < 1e-9
+    assert np.abs(extrapolate(torch.from_numpy(seen), 3).numpy() - future).max() > 5.0
+    # a driver 1.5 m right of the centre line keeps to that side: south heading east, east
+    # heading north
+    right = seen[:, -2:] - np.array([0.0, 1.5])
+    east = (seen[:, -1, 0] < 40.0) & (seen[:, -2, 0] < seen[:, -1, 0])
+    out, on = follow_streets(net, right[east, 0], right[east, 1], 3)
+    assert on.all()
+    turned = future[east][:, :, 1] > 10.0
+    assert np.allclose(out[turned][:, 0], 41.5) and np.allclose(out[~turned][:, 1], 8.5)
+    assert np.allclose(out[turned][:, 1], future[east][turned][:, 1])
+    # no velocity, across the street or beyond the street's reach: not driving along it
+    x = np.array([[20.0, 10.0], [20.0, 10.0], [20.0, 10.0 + STREET_REACH + 0.5]])
+    out, on = follow_streets(net, x - np.array([[0.0, 0.0], [0.0, 6.0], [6.0, 0.0]]), x, 2)
+    assert not on.any() and np.array_equal(out, np.repeat(x[:, None], 2, axis=1))
+
+
+def test_a_junction_splits_the_forecast_evenly_and_a_dead_end_turns_back():
+    net = StreetNetwork.from_segments(CROSS)
+    # 6 m per step from 4 m before the crossing: 2 m past it on one of three streets
+    out, on = follow_streets(net, np.array([[30.0, 10.0]]), np.array([[36.0, 10.0]]), 1)
+    # (42, 10), (40, 12) and (40, 8) in equal shares: their geometric median (the Fermat point,
+    # where each pair subtends 120 degrees), not their mean (41.33, 10)
+    assert on.all() and np.allclose(out[0, 0], [40.0 + 2.0 / np.sqrt(3.0), 10.0], atol=0.05)
+    # a dead end: back along the same street
+    out, _ = follow_streets(net, np.array([[70.0, 10.0]]), np.array([[76.0, 10.0]]), 1)
+    assert np.allclose(out[0, 0], [78.0, 10.0])
+    # a user's forecast is its own whatever its batch
+    drives = _l_drives(16, 4, 2) + np.array([0.0, 0.3])
+    batch, _ = follow_streets(net, drives[:, -2], drives[:, -1], 3)
+    for i in (0, 7, 15):
+        alone, _ = follow_streets(net, drives[i : i + 1, -2], drives[i : i + 1, -1], 3)
+        assert np.array_equal(alone[0], batch[i])
+
+
+def test_fast_users_on_a_street_map_follow_it_and_the_others_are_carried():
+    table = _lane_table()
+    spacing = 2.0
+    net = StreetNetwork.from_segments(L_STREETS * spacing)
+    drives = torch.from_numpy(_l_drives(8, 4, 3)) * spacing
+    off = drives + torch.tensor([-20.0, 20.0]) * spacing  # streets away from the map's
+    tracked = torch.cat([drives, off])
+    out = forecast_tracks(tracked, 3, table, spacing, net)
+    along, on = follow_streets(net, drives[:, -2].numpy(), drives[:, -1].numpy(), 3)
+    assert on.all() and torch.equal(out[:8], torch.from_numpy(along))
+    expect = carry(table, off[:, -2] / spacing, off[:, -1] / spacing, 3) * spacing
+    assert torch.equal(out[8:], expect)

@@ -160,6 +160,18 @@ class StreetNetwork:
         return cls._from_lines(cut)
 
     @classmethod
+    def from_segments(cls, segments: np.ndarray) -> StreetNetwork:
+        """Network of straight centre-line pieces ``segments (e, 2, 2)`` metres, as :meth:`lines`
+        gives them: pieces meeting at an end point (to 1e-6 m) connect there, and the largest
+        connected part is kept, so ``from_segments(net.lines())`` is ``net`` again."""
+        s = np.asarray(segments, dtype=np.float64)
+        if s.ndim != 3 or s.shape[1:] != (2, 2) or len(s) == 0:
+            raise TrajectoryError(f"street segments must have shape (e >= 1, 2, 2), got {s.shape}")
+        if not np.isfinite(s).all():
+            raise TrajectoryError("street segments hold NaN or infinite coordinates")
+        return cls._from_lines(shapely.linestrings(s))
+
+    @classmethod
     def _from_lines(cls, lines: np.ndarray) -> StreetNetwork:
         coords, which = shapely.get_coordinates(lines, return_index=True)
         key = np.round(coords, 6)

@@ -38,12 +38,14 @@ CARRY_PARTICLES = 1024
 1 % (1000 seen-area test trajectories)."""
 _MEDIAN_ITERATIONS = 20  # Weiszfeld steps of the geometric median
 STREET_REACH = 4.0
-"""Metres: a fast user farther than this from every centre line it could be driving along (a
-street's half width, as the street map keeps it from the buildings) is carried by the motion table
-instead of along the streets."""
-STREET_ALIGN = 0.7
-"""Least ``|cos|`` of the angle between a user's last displacement and a street for the user to be
-taken as driving along it (45 degrees: a displacement across a corner still counts)."""
+"""Metres: a fast user drives along a street when it is within ``STREET_REACH |cos a|`` of its
+centre line, ``a`` the angle between the street and its last displacement (a street's half width,
+as the street map keeps it from the buildings, for a user moving along it; none across it); the
+others are carried by the motion table."""
+STREET_TURN = 2.0
+"""Metres a street at right angles to a user's last displacement counts as farther away when the
+nearest street is chosen: just round a corner, the displacement still runs along the street the
+user left, but the user is on the new one."""
 STREET_PARTICLES = 64
 """Particles per user of :func:`follow_streets`: they differ only in their choices at junctions,
 drawn stratified, so 16x as many moved the default data set's vehicles' forecasts by 0.05 %."""
@@ -140,9 +142,10 @@ def carry(
 def _nearest_streets(
     net: StreetNetwork, x: np.ndarray, d: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For points ``x (B, 2)`` moving by ``d (B, 2)``: the nearest edge within :data:`STREET_ALIGN`
-    of the motion, the share along it of the point's foot, whether the motion runs from its first
-    node to its second, and the distance (inf where no edge is aligned)."""
+    """For points ``x (B, 2)`` moving by ``d (B, 2)``: the nearest edge, its distance made
+    :data:`STREET_TURN` metres larger per unit of ``1 - |cos|`` of its angle to the motion; the
+    share along it of the point's foot; whether the motion runs from its first node to its second;
+    and whether the point drives along it (see :data:`STREET_REACH`)."""
     a, b = net.nodes[net.edges[:, 0]], net.nodes[net.edges[:, 1]]
     ab = b - a
     n2 = (ab**2).sum(-1)
@@ -152,10 +155,10 @@ def _nearest_streets(
         t = np.clip(((xs - a) * ab).sum(-1) / np.maximum(n2, 1e-18), 0.0, 1.0)
         dist = np.linalg.norm(xs - (a + t[..., None] * ab), axis=-1)
         cos = (ds * ab).sum(-1) / np.maximum(np.linalg.norm(ds, axis=-1) * np.sqrt(n2), 1e-18)
-        dist = np.where(np.abs(cos) >= STREET_ALIGN, dist, np.inf)
-        k = np.argmin(dist, axis=1)
+        k = np.argmin(dist + STREET_TURN * (1.0 - np.abs(cos)), axis=1)
         r = np.arange(len(k))
-        out.append((k, t[r, k], cos[r, k] > 0, dist[r, k]))
+        c = cos[r, k]
+        out.append((k, t[r, k], c > 0, dist[r, k] < STREET_REACH * np.abs(c)))
     return tuple(np.concatenate(o) for o in zip(*out, strict=True))  # type: ignore[return-value]
 
 
@@ -165,9 +168,9 @@ def follow_streets(
     """Where users driving along the streets go after positions ``prev`` and ``last``.
 
     Each user is put on the nearest centre line it is driving along (within
-    :data:`STREET_REACH` metres and :data:`STREET_ALIGN` of its last displacement), in the
-    direction of that displacement, at the same signed distance to its right or left (a driver
-    keeps to a lane). Its particles keep its last displacement's length per step along the
+    :data:`STREET_REACH` metres, less as its last displacement turns away from the street; round a
+    corner, see :data:`STREET_TURN`), in the direction of that displacement, at the same signed
+    distance to its right or left (a driver keeps to a lane). Its particles keep its last displacement's length per step along the
     centre lines and take, at every junction, each onward street with equal probability (back
     only at a dead end): the street map is the scene's, the choice the one no data tell apart.
     The uniform numbers are the same for every user, so a user's forecast does not depend on the
@@ -197,8 +200,8 @@ def follow_streets(
     if B == 0 or H == 0:
         return out, np.zeros(B, dtype=bool)
     d = last - prev
-    edge, share, forward, dist = _nearest_streets(net, last, d)
-    on = dist <= STREET_REACH
+    edge, share, forward, on = _nearest_streets(net, last, d)
+    on &= (d != 0).any(axis=1)
     if not on.any():
         return out, on
     e = net.edges[edge[on]]

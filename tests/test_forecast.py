@@ -149,9 +149,10 @@ def test_drivers_follow_the_street_round_a_corner_at_their_speed():
     assert np.allclose(out[turned][:, 0], 41.5) and np.allclose(out[~turned][:, 1], 8.5)
     assert np.allclose(out[turned][:, 1], future[east][turned][:, 1])
     # just round the corner, the displacement runs along the street left (6 m east, 2 m north) but
-    # the driver is on the new one: 6.3 m further north, not on east past the corner and round it
-    out, on = follow_streets(net, np.array([[34.0, 10.0]]), np.array([[40.0, 12.0]]), 1)
-    assert on.all() and np.allclose(out[0, 0], [40.0, 12.0 + np.sqrt(40.0)])
+    # the driver is on the new one, at the 8 m per step it drove round the corner: on north, not
+    # on east past the corner and round it, nor at the chord's 6.3 m
+    out, on = follow_streets(net, np.array([[34.0, 10.0]]), np.array([[40.0, 12.0]]), 2)
+    assert on.all() and np.allclose(out[0], [[40.0, 20.0], [40.0, 28.0]])
     # no velocity, across the street or beyond the street's reach: not driving along it
     x = np.array([[20.0, 10.0], [20.0, 10.0], [20.0, 10.0 + STREET_REACH + 0.5]])
     out, on = follow_streets(net, x - np.array([[0.0, 0.0], [0.0, 6.0], [6.0, 0.0]]), x, 2)

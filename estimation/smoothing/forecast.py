@@ -162,6 +162,22 @@ def _nearest_streets(
     return tuple(np.concatenate(o) for o in zip(*out, strict=True))  # type: ignore[return-value]
 
 
+def _way_round(
+    net: StreetNetwork, came: np.ndarray, edge: np.ndarray, prev: np.ndarray, last: np.ndarray
+) -> np.ndarray:
+    """Length ``(B,)`` metres of the move from ``prev`` on edge ``came`` to ``last`` on edge
+    ``edge``: through the node the two edges share where they differ and share one, else (and
+    never less than) the straight line."""
+    chord = np.linalg.norm(last - prev, axis=1)
+    a0, b0 = net.edges[came].T
+    a1, b1 = net.edges[edge].T
+    node = np.where((a0 == a1) | (a0 == b1), a0, np.where((b0 == a1) | (b0 == b1), b0, -1))
+    node = np.where(came == edge, -1, node)
+    at = net.nodes[np.maximum(node, 0)]
+    way = np.linalg.norm(prev - at, axis=1) + np.linalg.norm(last - at, axis=1)
+    return np.where(node >= 0, np.maximum(way, chord), chord)
+
+
 def follow_streets(
     net: StreetNetwork, prev: np.ndarray, last: np.ndarray, horizon: int, particles: int = STREET_PARTICLES
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -170,8 +186,9 @@ def follow_streets(
     Each user is put on the nearest centre line it is driving along (within
     :data:`STREET_REACH` metres, less as its last displacement turns away from the street; round a
     corner, see :data:`STREET_TURN`), in the direction of that displacement, at the same signed
-    distance to its right or left (a driver keeps to a lane). Its particles keep its last displacement's length per step along the
-    centre lines and take, at every junction, each onward street with equal probability (back
+    distance to its right or left (a driver keeps to a lane). Its particles keep its last
+    displacement's length per step (round the node, where it and the position before lie on
+    streets that meet) along the centre lines and take, at every junction, each onward street with equal probability (back
     only at a dead end): the street map is the scene's, the choice the one no data tell apart.
     The uniform numbers are the same for every user, so a user's forecast does not depend on the
     others in its batch.
@@ -204,6 +221,10 @@ def follow_streets(
     on &= (d != 0).any(axis=1)
     if not on.any():
         return out, on
+    # Round a corner (or a bend of the centre line) the last displacement is a chord: the speed is
+    # the way round the node the two positions' streets share.
+    came = _nearest_streets(net, prev[on], d[on])[0]
+    speed = _way_round(net, came, edge[on], prev[on], last[on])
     e = net.edges[edge[on]]
     frm = np.where(forward[on], e[:, 0], e[:, 1])
     to = np.where(forward[on], e[:, 1], e[:, 0])
@@ -214,7 +235,6 @@ def follow_streets(
     # signed distance to the left of the direction of travel, kept on every street after
     w = last[on] - nodes[frm]
     side = u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
-    speed = np.linalg.norm(d[on], axis=1)
     m = int(on.sum())
     frm, to, rem = (np.repeat(a, n) for a in (frm, to, rem))
     speed, side = np.repeat(speed, n), np.repeat(side, n)

@@ -189,3 +189,25 @@ def test_fast_users_on_a_street_map_follow_it_and_the_others_are_carried():
     assert on.all() and torch.equal(out[:8], torch.from_numpy(along))
     expect = carry(table, off[:, -2] / spacing, off[:, -1] / spacing, 3) * spacing
     assert torch.equal(out[8:], expect)
+
+
+def test_fast_users_who_just_stopped_do_what_the_training_users_did_next():
+    # drives at 6 units per step that stop for one step (at 2 / 3 / 4) and drive on at 6, then
+    # drives that stop for good: the median next step after a stop is 6, then 0
+    t = np.arange(8.0)
+    pause = np.stack([np.minimum(6.0 * t, 6.0 * np.maximum(t - 1, k)) for k in (2, 3, 4)] * 10)
+    stay = np.stack([np.minimum(6.0 * t, 6.0 * k) for k in (2, 3, 4)] * 10)
+    on_line = lambda x: np.stack([x, np.full_like(x, 10.0)], -1)  # noqa: E731
+    lines = L_STREETS[:1] * np.array([[4.0, 1.0]])  # a long street along y = 10
+    table = MotionTable.lattice()
+    table.fit(on_line(pause)).fit_place(on_line(pause), np.array([-0.5, -0.5]), 1.0, (200, 21), speed=5.0)
+    assert float(table.restart_step) == pytest.approx(6.0)
+    net = StreetNetwork.from_segments(lines)
+    stopped = torch.from_numpy(on_line(np.array([[0.0, 6.0, 6.0]])))
+    out = forecast_tracks(stopped, 2, table, 1.0, net)
+    assert torch.allclose(out, torch.from_numpy(on_line(np.array([[12.0, 18.0]]))))
+    # without the street map, or where stopped users stayed, a stopped user stays
+    assert torch.equal(forecast_tracks(stopped, 2, table, 1.0), extrapolate(stopped, 2))
+    table.fit_place(on_line(stay), np.array([-0.5, -0.5]), 1.0, (200, 21), speed=5.0)
+    assert float(table.restart_step) == 0.0
+    assert torch.equal(forecast_tracks(stopped, 2, table, 1.0, net), extrapolate(stopped, 2))

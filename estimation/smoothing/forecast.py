@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from .motion import RESTART_SHARE
+
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
 
@@ -303,6 +305,19 @@ def forecast_tracks(
         return out
     step = (tracked[:, -1] - tracked[:, -2]).double().norm(dim=-1) / spacing
     fast = step > float(table.place_speed)
+    if streets is not None and tracked.shape[1] >= 3 and float(table.restart_step) > 0:
+        # Fast users who have just stopped do what the training users did next: drive on along
+        # their street at the measured length (where the measured one is zero they stay).
+        before = (tracked[:, -2] - tracked[:, -3]).double()
+        gone = before.norm(dim=-1) / spacing
+        stopped = torch.nonzero(
+            (gone > float(table.place_speed)) & (step < RESTART_SHARE * float(table.place_speed))
+        ).flatten()
+        if len(stopped):
+            last = tracked[stopped, -1].double().numpy()
+            way = (before[stopped] / gone[stopped, None]).numpy() * float(table.restart_step)
+            along, on = follow_streets(streets, last - way, last, horizon)
+            out[stopped[on]] = torch.from_numpy(along[on]).to(out.dtype)
     rows = torch.nonzero(fast).flatten()
     if len(rows) and streets is not None:
         last2 = tracked[rows, -2:].double().numpy()

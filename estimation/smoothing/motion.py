@@ -71,6 +71,11 @@ PLACE_SPEED = 5.0
 # Weight of the flat density mixed into the measured one: a place no fast training user visited is
 # this much (relative) less likely than the average place, never impossible.
 PLACE_FLOOR = 3.0
+# A fast user (over the place table's speed) whose next step is under this share of that speed has
+# stopped; what such users do the step after is measured with the place table (restart_step), from
+# at least RESTART_MIN such stops.
+RESTART_SHARE = 0.4
+RESTART_MIN = 20
 # Users from this speed (metres per step) up share one acceleration table in the speed-pooled
 # alternative (MotionTable.speed_pooled): the generator's vehicles drive at 5.3, 8.3 or 11.3 m per
 # step, and steady vehicles at other speeds were tracked 30 to 90 % worse by the per-band tables.
@@ -228,6 +233,9 @@ class MotionTable(nn.Module):
         self.register_buffer("log_place", torch.zeros(1, 1, dtype=torch.float16))
         self.register_buffer("place_origin", torch.zeros(2, dtype=torch.float64))
         self.register_buffer("place_res", torch.tensor(1.0, dtype=torch.float64))
+        # What fast users do the step after they stop (fit_place): the median length of that
+        # step, the table's units; zero until measured, i.e. a stopped user stays.
+        self.register_buffer("restart_step", torch.tensor(0.0, dtype=torch.float64))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         if prefix + "fitted" not in state_dict:
@@ -236,7 +244,7 @@ class MotionTable(nn.Module):
                 state_dict[prefix + name] = buf
         # The place table's shape depends on the area it was measured on; a model saved before
         # place tables existed has none (no place preference).
-        for name in ("place_speed", "log_place", "place_origin", "place_res"):
+        for name in ("place_speed", "log_place", "place_origin", "place_res", "restart_step"):
             key = prefix + name
             if key in state_dict:
                 setattr(self, name, torch.empty_like(state_dict[key]))
@@ -299,7 +307,10 @@ class MotionTable(nn.Module):
         A position's speed is that of its step in (the first one's, of its step out). The fast
         users' histogram, smoothed by a Gaussian of ``smooth`` cells, becomes the density ratio
         ``(h + floor u) / ((1 + floor) u)`` against their flat density ``u`` over the cells any
-        user visited: above 1 in lanes, ``floor / (1 + floor)`` where none went. Returns ``self``.
+        user visited: above 1 in lanes, ``floor / (1 + floor)`` where none went. With it,
+        ``restart_step``: the median length of the step after a fast user's step falls under
+        :data:`RESTART_SHARE` of ``speed`` (it stopped), zero (it stays) with fewer than
+        :data:`RESTART_MIN` such stops. Returns ``self``.
         """
         p = np.asarray(positions, dtype=np.float64)
         if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2 or not len(p):
@@ -308,6 +319,10 @@ class MotionTable(nn.Module):
             raise ValueError("positions hold NaN or infinite values")
         _check_place(shape, res, floor, speed)
         step = np.linalg.norm(np.diff(p, axis=1), axis=-1)  # (n, L-1)
+        stopped = (step[:, :-2] > speed) & (step[:, 1:-1] < RESTART_SHARE * speed)
+        after = step[:, 2:][stopped]
+        restart = float(np.median(after)) if len(after) >= RESTART_MIN else 0.0
+        self.restart_step = torch.tensor(restart, dtype=torch.float64)
         fast = np.concatenate([step[:, :1], step], axis=1).ravel() > speed
         ij, ok = _table_cells(p.reshape(-1, 2), origin, res, shape)
         visited = max(len(np.unique(ij[ok, 0] * int(shape[1]) + ij[ok, 1])), 1)

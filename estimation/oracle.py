@@ -525,20 +525,15 @@ class _StreetMotion(_Transition):
         """Every particle one step along its route; as :meth:`_FreeMotion.step` (the transition
         itself is the proposal: no correction)."""
         events, speed, step, _ = _speed_step(self.model, self.dt, s.speed, s.restart, rng, s.scale)
-        nodes, nbr = self.net.nodes, self.net.neighbours
+        nodes = self.net.nodes
         prev, cur, off = s.prev.copy(), s.cur.copy(), s.off + step
         length = np.linalg.norm(nodes[cur] - nodes[prev], axis=1)
         idx = np.flatnonzero(off > length)
         passed = np.zeros(len(off), dtype=bool)
         passed[idx] = True
         while len(idx):  # past the node: on to a random next street (back only at a dead end)
-            c, p = cur[idx], prev[idx]
-            cand = nbr[c]
-            onward = (cand >= 0) & (cand != p[:, None])
-            count = onward.sum(axis=1)
-            pick = np.floor(rng.random(len(idx)) * np.maximum(count, 1)).astype(np.int64)
-            col = np.argmax(np.cumsum(onward, axis=1) > pick[:, None], axis=1)
-            nxt = np.where(count > 0, cand[np.arange(len(idx)), col], p)
+            c = cur[idx]
+            nxt = self.net.onward(c, prev[idx], rng.random(len(idx)))
             off[idx] -= length[idx]
             prev[idx], cur[idx] = c, nxt
             length[idx] = np.linalg.norm(nodes[nxt] - nodes[c], axis=1)

@@ -123,6 +123,14 @@ def test_street_segments_make_the_network_they_came_from():
     net = StreetNetwork.from_segments(CROSS)
     assert len(net.nodes) == 5 and len(net.edges) == 4
     assert sorted(net.degree.tolist()) == [1, 1, 1, 1, 4]
+    # from the west into the crossing: each of the three other streets for a third of the uniform
+    # numbers, never back; at a dead end, back
+    centre = int(np.flatnonzero(net.degree == 4)[0])
+    west = int(np.flatnonzero((net.nodes == [0.0, 10.0]).all(1))[0])
+    u = (np.arange(12) + 0.5) / 12
+    nxt = net.onward(np.full(12, centre), np.full(12, west), u)
+    assert west not in nxt and np.array_equal(np.bincount(nxt, minlength=5)[nxt[::4]], [4, 4, 4])
+    assert np.array_equal(net.onward(np.array([west]), np.array([centre]), np.array([0.7])), [centre])
     again = StreetNetwork.from_segments(net.lines())
     assert np.array_equal(again.nodes, net.nodes) and np.array_equal(again.edges, net.edges)
     for bad, match in ((np.zeros((2, 3, 2)), "shape"), (np.full((1, 2, 2), np.inf), "NaN")):

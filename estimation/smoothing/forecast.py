@@ -50,7 +50,7 @@ nearest street is chosen: just round a corner, the displacement still runs along
 user left, but the user is on the new one."""
 STREET_PARTICLES = 64
 """Particles per user of :func:`follow_streets`: they differ only in their choices at junctions,
-drawn stratified, so 16x as many moved the default data set's vehicles' forecasts by 0.05 %."""
+drawn stratified, so 16x as many moved the default data set's vehicles' forecasts by 0.01 %."""
 _STREET_CHUNK = 256  # users per chunk of the nearest-street search (users x edges arrays)
 _MAX_NODES = 64  # junctions one particle may pass in one step (only a degenerate map needs more)
 
@@ -190,8 +190,9 @@ def follow_streets(
     corner, see :data:`STREET_TURN`), in the direction of that displacement, at the same signed
     distance to its right or left (a driver keeps to a lane). Its particles keep its last
     displacement's length per step (round the node, where it and the position before lie on
-    streets that meet) along the centre lines and take, at every junction, each onward street with equal probability (back
-    only at a dead end): the street map is the scene's, the choice the one no data tell apart.
+    streets that meet) along the centre lines and take, at every junction, each onward street with
+    equal probability (:meth:`StreetNetwork.onward`): the street map is the scene's, the choice the
+    one no data tell apart.
     The uniform numbers are the same for every user, so a user's forecast does not depend on the
     others in its batch.
 
@@ -219,8 +220,7 @@ def follow_streets(
     if B == 0 or H == 0:
         return out, np.zeros(B, dtype=bool)
     d = last - prev
-    edge, share, forward, on = _nearest_streets(net, last, d)
-    on &= (d != 0).any(axis=1)
+    edge, share, forward, on = _nearest_streets(net, last, d)  # never on for d = 0 (cos 0)
     if not on.any():
         return out, on
     # Round a corner (or a bend of the centre line) the last displacement is a chord: the speed is
@@ -250,13 +250,8 @@ def follow_streets(
             # stratified: each onward street gets its share of every user's particles
             g = np.random.default_rng([h, j])
             draw = ((g.permutation(n) + g.random(n)) / n)[over % n]
-            c, p = to[over], frm[over]
-            cand = net.neighbours[c]
-            onward = (cand >= 0) & (cand != p[:, None])
-            count = onward.sum(axis=1)
-            pick = np.floor(draw * np.maximum(count, 1)).astype(np.int64)
-            col = np.argmax(np.cumsum(onward, axis=1) > pick[:, None], axis=1)
-            nxt = np.where(count > 0, cand[np.arange(len(over)), col], p)
+            c = to[over]
+            nxt = net.onward(c, frm[over], draw)
             go[over] -= rem[over]
             frm[over], to[over] = c, nxt
             rem[over] = np.linalg.norm(nodes[nxt] - nodes[c], axis=1)
@@ -265,8 +260,8 @@ def follow_streets(
         along = span / np.maximum(np.linalg.norm(span, axis=1), 1e-12)[:, None]
         pos = nodes[to] - rem[:, None] * along + side[:, None] * np.stack([-along[:, 1], along[:, 0]], -1)
         steps.append(pos.reshape(m, n, 2))
-    # the geometric median, as carry's: 1.6 % below the mean on the seen area's vehicles, the same
-    # held out (forecast from tn-match's tracks)
+    # the geometric median, as carry's: 1.9 % below the mean on the seen area's vehicles, the same
+    # held out (forecast from tn-match's tracks, docs/estimation.md)
     clouds = torch.from_numpy(np.stack(steps, axis=1).reshape(m * H, n, 2))
     median = _geometric_median(clouds, torch.full((m * H, n), 1.0 / n, dtype=torch.float64))
     out[on] = median.numpy().reshape(m, H, 2)

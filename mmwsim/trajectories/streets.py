@@ -194,6 +194,17 @@ class StreetNetwork:
         return cls(nodes[keep_nodes], e)
 
     # ------------------------------------------------------------------ routes
+    def onward(self, cur: np.ndarray, prev: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The node after ``cur (n,)`` for drivers coming from ``prev (n,)``: of ``cur``'s
+        neighbours other than ``prev``, the one ``u (n,)`` (uniform numbers in [0, 1)) picks, each
+        with equal probability; ``prev`` at a dead end."""
+        cand = self.neighbours[cur]
+        ok = (cand >= 0) & (cand != prev[:, None])
+        count = ok.sum(axis=1)
+        pick = np.floor(u * np.maximum(count, 1)).astype(np.int64)
+        col = np.argmax(np.cumsum(ok, axis=1) > pick[:, None], axis=1)
+        return np.where(count > 0, cand[np.arange(len(cur)), col], prev)
+
     def random_routes(
         self, n: int, distance: np.ndarray, rng: np.random.Generator, max_pieces: int = 10_000
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -224,16 +235,10 @@ class StreetNetwork:
         start = self.nodes[prev] + t[:, None] * (self.nodes[cur] - self.nodes[prev])
         pts = [start, self.nodes[cur]]
         arcs = [np.zeros(n), (1.0 - t) * self.edge_length[e]]
-        rows = np.arange(n)
         for _ in range(max_pieces):
             if np.all(arcs[-1] >= need):
                 break
-            cand = self.neighbours[cur]
-            ok = (cand >= 0) & (cand != prev[:, None])
-            count = ok.sum(axis=1)
-            pick = np.floor(rng.random(n) * np.maximum(count, 1)).astype(np.int64)
-            col = np.argmax(np.cumsum(ok, axis=1) > pick[:, None], axis=1)
-            nxt = np.where(count > 0, cand[rows, col], prev)
+            nxt = self.onward(cur, prev, rng.random(n))
             step = np.linalg.norm(self.nodes[nxt] - self.nodes[cur], axis=1)
             pts.append(self.nodes[nxt])
             arcs.append(arcs[-1] + step)

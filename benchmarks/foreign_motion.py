@@ -168,6 +168,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="lanes measured on the training trajectories, not the street map (Estimator.street_lanes = False)",
     )
+    ap.add_argument(
+        "--no-routes",
+        action="store_true",
+        help="drivers on the street map not smoothed along their routes (Estimator.route_tracking = False)",
+    )
     for kind, example in SHIFTED.items():
         ap.add_argument(
             f"--{kind}-speeds",
@@ -210,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     est = Estimator.load(args.run).attach(ds, sigma=args.noise)
     est.robust_motion = not args.measured_motion_only
     est.street_lanes = not args.measured_lanes
+    est.route_tracking = not args.no_routes
     fs = FreeSpace.from_scene(
         ds.scene(), clearance=0.5, coverage=CoverageMask.from_dataset(ds), bounds=ds.grid.bounds
     )

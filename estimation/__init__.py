@@ -73,6 +73,7 @@ _EXPORTS = {
         "extrapolate",
         "forecast_tracks",
         "kalman_forecast",
+        "route_track",
         "rts_smoother",
     ),
     ".training": ("log_training", "read_run_info", "train"),

@@ -26,6 +26,7 @@ from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
+from .smoothing.route import route_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -231,6 +232,12 @@ class Estimator(nn.Module):
         street map follow its streets, taking any onward street at a junction
         (:func:`~estimation.smoothing.forecast.follow_streets`), instead of being carried through
         the motion table (default True; only where :attr:`street_lanes` gives the lanes).
+    route_tracking : bool
+        Whether a grid-reading network's tracks of users driving along the streets of the
+        attached data's street map are smoothed along their routes
+        (:func:`~estimation.smoothing.route.route_track`: arc length and speed, by the speeds
+        measured on the training users) before they are returned or forecast (default True;
+        only where :attr:`street_lanes` gives the lanes and the model measured those speeds).
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
@@ -241,6 +248,7 @@ class Estimator(nn.Module):
         self.street_lanes = True
         self.lane_forecast = True
         self.street_forecast = True
+        self.route_tracking = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
         self._steady: tuple[bytes, tuple | None] | None = None  # (digest, _steady_motion's tables)
@@ -517,9 +525,29 @@ class Estimator(nn.Module):
 
     def _predict_rows(self, x: Any) -> torch.Tensor:
         """:meth:`predict` of one chunk of inputs, metres."""
-        if self.lane_forecast and self.uses_grid and self.config.task == "forecasting":
-            return self.forecast(self.net.track(*x), self.config.horizon).float()
-        return self.normaliser.to_metres(positions(self(x)))
+        forecasting = self.config.task == "forecasting"
+        if self.lane_forecast and self.uses_grid and forecasting:
+            return self.forecast(self._along_routes(self.net.track(*x), x), self.config.horizon).float()
+        out = self.normaliser.to_metres(positions(self(x)))
+        return self._along_routes(out, x) if self.uses_grid and not forecasting else out
+
+    def _along_routes(self, tracked: torch.Tensor, x: Any) -> torch.Tensor:
+        """``tracked (B, T, 2)`` metres with the users who drive along the attached street map
+        smoothed along their routes (:attr:`route_tracking`), from the candidates of the
+        inputs ``x``; as it is where that does not apply."""
+        fine = self._lane_motion()[1]
+        net = self._street_network(self.route_tracking)
+        if net is None or not len(fine.route_speeds) or tracked.shape[1] < 2:
+            return tracked
+        xy, post = x[0], x[1]
+        step = float(self.net.grid_step)
+        track, on = route_track(
+            tracked.double().numpy(), xy.double().numpy(), post[..., 0].double().numpy(), net,
+            fine.route_speeds.numpy(), float(fine.route_change), step, float(fine.place_speed) * step,
+        )  # fmt: skip
+        out = tracked.clone()
+        out[torch.from_numpy(on)] = torch.from_numpy(track[on]).to(out.dtype)
+        return out
 
     @torch.no_grad()
     def forecast(self, tracked: torch.Tensor, horizon: int) -> torch.Tensor:
@@ -534,10 +562,11 @@ class Estimator(nn.Module):
             return extrapolate(tracked, horizon)
         return forecast_tracks(tracked, horizon, fine, float(self.net.grid_step), self._street_network())
 
-    def _street_network(self) -> StreetNetwork | None:
+    def _street_network(self, wanted: bool | None = None) -> StreetNetwork | None:
         """The attached street map as a graph where :meth:`forecast` follows its streets (see
-        :attr:`street_forecast`), made again only when the map changes."""
-        streets = self._map_lanes() if self.street_forecast else None
+        :attr:`street_forecast`; ``wanted`` instead of it for another use), made again only when
+        the map changes."""
+        streets = self._map_lanes() if (self.street_forecast if wanted is None else wanted) else None
         if streets is None:
             return None
         key = hashlib.sha1(np.ascontiguousarray(streets[0]).tobytes()).digest()

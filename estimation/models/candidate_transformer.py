@@ -173,6 +173,7 @@ class CandidateTransformer(nn.Module):
         if places:
             self.motion.fit_place(on_grid, *cell)
             self.motion_fine.fit_place(u + lo / spacing, *fine, PLACE_SPEED / spacing)
+            self.motion_fine.fit_drives((p - lo) / spacing, PLACE_SPEED / spacing)
         else:
             self.motion.drop_place()
             self.motion_fine.drop_place()

@@ -1,6 +1,6 @@
 """Smoothing of per-step fingerprint matches: Kalman (one match per step) and hidden-Markov (many
 candidates per step), with the motion densities the hidden-Markov smoothers score steps by and the acceleration
-memory their sampled paths are weighed by."""
+memory their sampled paths are weighed by, and the smoother of drivers along their street routes."""
 
 from .forecast import carry, extrapolate, forecast_tracks
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
@@ -8,6 +8,7 @@ from .kalman import kalman_forecast, rts_smoother
 from .memory import MotionMemory
 from .motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from .online import CandidateFilter
+from .route import route_track, street_routes
 
 __all__ = [
     "CandidateFilter",
@@ -21,9 +22,11 @@ __all__ = [
     "forecast_tracks",
     "kalman_forecast",
     "motion_posterior",
+    "route_track",
     "rts_smoother",
     "snap_to_lattice",
     "speed_scaled",
+    "street_routes",
     "subcell_mean",
     "velocity_posterior",
 ]

@@ -34,6 +34,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from .route import ROUTE_BINS
+
 __all__ = [
     "MixtureMotion",
     "MotionTable",
@@ -236,6 +238,12 @@ class MotionTable(nn.Module):
         # What fast users do the step after they stop (fit_place): the median length of that
         # step, the table's units; zero until measured, i.e. a stopped user stays.
         self.register_buffer("restart_step", torch.tensor(0.0, dtype=torch.float64))
+        # How users faster than the place speed drive (fit_place), for the smoother along their
+        # street routes: the share of their steps per length, in bins of 1 / ROUTE_BINS of the
+        # table's unit, and how often their step length changes; none until measured (no such
+        # smoothing).
+        self.register_buffer("route_speeds", torch.zeros(0, dtype=torch.float64))
+        self.register_buffer("route_change", torch.tensor(0.0, dtype=torch.float64))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         if prefix + "fitted" not in state_dict:
@@ -244,7 +252,9 @@ class MotionTable(nn.Module):
                 state_dict[prefix + name] = buf
         # The place table's shape depends on the area it was measured on; a model saved before
         # place tables existed has none (no place preference).
-        for name in ("place_speed", "log_place", "place_origin", "place_res", "restart_step"):
+        for name in (
+            "place_speed", "log_place", "place_origin", "place_res", "restart_step", "route_speeds", "route_change",
+        ):  # fmt: skip
             key = prefix + name
             if key in state_dict:
                 setattr(self, name, torch.empty_like(state_dict[key]))
@@ -288,6 +298,30 @@ class MotionTable(nn.Module):
         return torch.where(fast, self.log_place[i, j].to(x.dtype), torch.zeros((), dtype=x.dtype)).expand(
             shape
         )
+
+    @torch.no_grad()
+    def fit_drives(self, positions: np.ndarray, speed: float) -> MotionTable:
+        """Measure how users faster than ``speed`` (their median step, the table's units) drive,
+        on trajectories ``positions (n, L >= 2, 2)`` as they are (not snapped): ``route_speeds``,
+        the share of their steps per length in bins of ``1 / ROUTE_BINS`` of the table's unit,
+        and ``route_change``, the share of their consecutive steps whose lengths differ by more
+        than a bin (what :func:`~estimation.smoothing.route.route_track` drives them by). Both
+        are cleared where there is no such user. Returns ``self``."""
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
+            raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError("positions hold NaN or infinite values")
+        step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
+        drives = np.rint(step[np.median(step, axis=1) > speed] * ROUTE_BINS).astype(np.int64)
+        if not drives.size:
+            self.route_speeds = torch.zeros(0, dtype=torch.float64)
+            self.route_change = torch.tensor(0.0, dtype=torch.float64)
+            return self
+        self.route_speeds = torch.from_numpy(np.bincount(drives.ravel()) / drives.size)
+        changed = np.abs(np.diff(drives, axis=1)) > 1
+        self.route_change = torch.tensor(float(changed.mean()) if changed.size else 0.0, dtype=torch.float64)
+        return self
 
     @torch.no_grad()
     def fit_place(

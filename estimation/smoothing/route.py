@@ -1,0 +1,294 @@
+"""Tracks of drivers smoothed along the street route they drive.
+
+The hidden-Markov smoother scores each step's acceleration on a lattice, so a vehicle that holds a
+speed along a street and round its corners is read as one that keeps changing speed and heading
+wherever the lattice and the corner's chord do not line up. A driver on a known street map has
+two degrees of freedom instead: how far along its route it is, and how fast it goes. So for a
+tracked user faster than the place table's speed whose every tracked position lies on the map's
+streets, :func:`route_track` builds the route through the streets it was tracked on and runs a
+forward-backward pass over (arc length, speed) on a fine grid along that route: the speed is
+kept from step to step or, with the measured probability of a change, drawn again from the
+measured speeds; each step weighs its arc lengths by the fingerprint likelihood of the candidate
+grid point there. The track is the posterior mean position at every step.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import shortest_path
+
+if TYPE_CHECKING:
+    from mmwsim.trajectories import StreetNetwork
+
+__all__ = ["ROUTE_BINS", "route_track", "street_routes"]
+
+ROUTE_BINS = 20
+"""Bins of the arc length (and of the speed per step) per grid spacing: 5 cm on a 1 m grid."""
+ROUTE_WINDOW = 2.5
+"""Grid spacings either side of a tracked position's arc length that the pass weighs."""
+ROUTE_REACH = 3.0
+"""Metres: every tracked position of a user smoothed along a route lies this near a street."""
+ROUTE_EXTEND = 20.0
+"""Metres the route runs on straight past the first and the last street it was tracked on."""
+ROUTE_FLOOR = 0.1
+"""Share of a flat density over all speeds up to the fastest measured in the speed prior, for
+drivers who keep speeds the training users did not."""
+ROUTE_DETOUR = 60.0
+"""Metres: the longest way between two streets a track passes that the route fills in."""
+ROUTE_GATE = 1.5
+"""Grid spacings a position may move from the smoother's track; a route track that moves one
+farther is not kept (a route that does not fit the driver, e.g. one in a lane beside the centre
+line)."""
+ROUTE_SIDE = 0.5
+"""Grid spacings: a track whose mean signed distance from its route's centre line is larger
+keeps to a lane beside it and is not smoothed along the centre line."""
+_CHUNK = 64  # users per forward-backward pass (chunk x window x speeds x steps float64 arrays)
+
+
+def _paths(net: StreetNetwork) -> tuple[np.ndarray, np.ndarray]:
+    """All-pairs shortest path lengths and predecessors of the street graph (cached on it)."""
+    cached = getattr(net, "_route_paths", None)
+    if cached is None:
+        n = len(net.nodes)
+        g = coo_matrix((net.edge_length, (net.edges[:, 0], net.edges[:, 1])), shape=(n, n)).tocsr()
+        cached = shortest_path(g, directed=False, return_predecessors=True)
+        net._route_paths = cached  # type: ignore[attr-defined]
+    return cached
+
+
+def _nearest_edges(lines: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest centre-line piece of every ``p (..., 2)`` and its distance."""
+    a, ab = lines[:, 0], lines[:, 1] - lines[:, 0]
+    l2 = np.maximum((ab**2).sum(1), 1e-12)
+    t = np.clip(((p[..., None, :] - a) * ab).sum(-1) / l2, 0.0, 1.0)
+    d = np.linalg.norm(p[..., None, :] - (a + t[..., None] * ab), axis=-1)
+    e = d.argmin(-1)
+    return e, np.take_along_axis(d, e[..., None], -1)[..., 0]
+
+
+def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[int] | None:
+    """Nodes of the route through the edges ``seq`` (in the order the track meets them)."""
+    E = net.edges
+    dist, pred = _paths(net)
+    a, b = (int(x) for x in E[seq[0]])
+    if len(seq) == 1:
+        if (track[-1] - track[0]) @ (net.nodes[b] - net.nodes[a]) < 0:
+            a, b = b, a
+        return [a, b]
+    if dist[a, E[seq[1]]].min() < dist[b, E[seq[1]]].min():  # leave by the end nearer the next
+        a, b = b, a
+    nodes = [a, b]
+    for x in seq[1:]:
+        c = nodes[-1]
+        p, q = (int(y) for y in E[x])
+        if dist[c, p] > dist[c, q]:
+            p, q = q, p
+        if not dist[c, p] <= ROUTE_DETOUR:
+            return None
+        way = []
+        while p != c:
+            way.append(p)
+            p = int(pred[c, p])
+        nodes += way[::-1] + [q]
+    i = 0
+    while i + 2 < len(nodes):  # a street touched at a junction is no detour: x, y, x -> x
+        if nodes[i] == nodes[i + 2]:
+            del nodes[i + 1 : i + 3]
+            i = max(i - 1, 0)
+        else:
+            i += 1
+    return nodes if len(nodes) >= 2 and len(set(nodes)) == len(nodes) else None
+
+
+def street_routes(
+    net: StreetNetwork, tracks: np.ndarray, reach: float = ROUTE_REACH
+) -> list[np.ndarray | None]:
+    """The route each track drives along the street map, or None where it leaves the streets.
+
+    Parameters
+    ----------
+    net : mmwsim.trajectories.StreetNetwork
+    tracks : (B, T, 2) float, metres
+    reach : float
+        Metres every tracked position must lie from a street.
+
+    Returns
+    -------
+    list of B ``(R, 2)`` float64 route vertices in metres (the streets' nodes in the order the
+    track drives them, the first and last pieces run on straight by :data:`ROUTE_EXTEND`), or
+    None where a position is farther than ``reach`` from every street, the streets it passes are
+    not joined within :data:`ROUTE_DETOUR`, or the route would pass a node twice (a U-turn).
+    """
+    tracks = np.asarray(tracks, dtype=np.float64)
+    edge, dist = _nearest_edges(net.lines(), tracks)
+    out: list[np.ndarray | None] = []
+    # One route per user: a few graph steps each, from the edges the vectorised search found.
+    for b in range(len(tracks)):
+        if not dist[b].max() <= reach:
+            out.append(None)
+            continue
+        e = edge[b]
+        seq = [int(e[0])] + [int(x) for x, y in zip(e[1:], e[:-1], strict=True) if x != y]
+        nodes = _route_nodes(net, seq, tracks[b])
+        if nodes is None:
+            out.append(None)
+            continue
+        P = net.nodes[nodes]
+        ends = P[[0, -1]] - P[[1, -2]]
+        ends /= np.linalg.norm(ends, axis=1, keepdims=True)
+        out.append(np.vstack([P[0] + ROUTE_EXTEND * ends[0], P, P[-1] + ROUTE_EXTEND * ends[1]]))
+    return out
+
+
+def _along(route: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Positions ``(..., 2)`` at arc lengths ``s (...)`` along ``route (R, 2)`` (run on straight
+    past its ends)."""
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))]
+    i = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
+    f = (s - arc[i]) / np.maximum(arc[i + 1] - arc[i], 1e-12)
+    return route[i] + f[..., None] * (route[i + 1] - route[i])
+
+
+def _arc_of(route: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length along ``route (R, 2)`` of the nearest route point to each ``x (n, 2)``, and
+    the signed distance of ``x`` to the left of the route there."""
+    a, ab = route[:-1], np.diff(route, axis=0)
+    l2 = np.maximum((ab**2).sum(1), 1e-12)
+    t = np.clip(((x[:, None] - a) * ab).sum(-1) / l2, 0.0, 1.0)
+    d = np.linalg.norm(x[:, None] - (a + t[..., None] * ab), axis=-1)
+    i = d.argmin(1)
+    arc = np.r_[0.0, np.cumsum(np.sqrt(l2))]
+    w, u = x - a[i], ab[i] / np.sqrt(l2[i])[:, None]
+    return arc[i] + t[np.arange(len(x)), i] * np.sqrt(l2[i]), u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+
+
+def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: float) -> np.ndarray:
+    """Log-likelihood of the grid points nearest ``pos (n, T, S, 2)`` from each step's candidates
+    ``xy (n, T, K, 2)`` with ``lp (n, T, K)``; a point that is no candidate gets its step's
+    lowest candidate's (the candidates are a step's most likely points)."""
+    n, T, K = lp.shape
+    # cells of the grid the candidates lie on (any candidate is one of its points)
+    cells = [np.rint((p - xy.reshape(-1, 2)[0]) / spacing).astype(np.int64) for p in (xy, pos)]
+    lo = np.minimum(cells[0].reshape(-1, 2).min(0), cells[1].reshape(-1, 2).min(0))
+    span = int(max(cells[0].max(), cells[1].max()) - lo.min()) + 1
+
+    def key(ij: np.ndarray) -> np.ndarray:
+        return (ij[..., 0] - lo[0]) * span + (ij[..., 1] - lo[1])
+
+    step = np.arange(n * T, dtype=np.int64).reshape(n, T)
+    cand = (step[..., None] * span * span + key(cells[0])).ravel()
+    order = np.argsort(cand, kind="stable")
+    sorted_keys, sorted_lp = cand[order], lp.reshape(-1)[order]
+    want = step[..., None] * span * span + key(cells[1])
+    j = np.clip(np.searchsorted(sorted_keys, want), 0, len(sorted_keys) - 1)
+    floor = lp.min(-1)[..., None]
+    return np.where(sorted_keys[j] == want, sorted_lp[j], floor)
+
+
+def _forward_backward(lik: np.ndarray, d: np.ndarray, prior: np.ndarray, change: float) -> np.ndarray:
+    """Posterior over the window's arc bins ``(n, T, S)`` of users at arc bin ``centre_t + i`` (the
+    window ``i`` in ``0..S-1``) moving ``j`` bins per step (``prior (V,)``, kept with probability
+    ``1 - change``); ``lik (n, T, S)`` the steps' likelihoods, ``d (n, T-1)`` the windows' shifts."""
+    n, T, S = lik.shape
+    V = len(prior)
+    j = np.arange(V)
+    rows = np.arange(n)[:, None, None]
+    i = np.arange(S)[None, :, None]
+    alpha = np.empty((n, T, S, V))
+    a = lik[:, 0, :, None] * prior
+    alpha[:, 0] = a / np.maximum(a.sum((1, 2), keepdims=True), 1e-300)
+    for t in range(T - 1):
+        src = i + d[:, t, None, None] - j  # the bin a user arriving at i with speed j came from
+        ok = (src >= 0) & (src < S)
+        moved = np.where(ok, alpha[:, t][rows, np.clip(src, 0, S - 1), j], 0.0)
+        a = (1 - change) * moved + change * moved.sum(2, keepdims=True) * prior
+        a *= lik[:, t + 1, :, None]
+        alpha[:, t + 1] = a / np.maximum(a.sum((1, 2), keepdims=True), 1e-300)
+    beta = np.ones((n, S, V))
+    post = np.empty((n, T, S))
+    post[:, -1] = alpha[:, -1].sum(2)
+    for t in range(T - 2, -1, -1):
+        dst = i - d[:, t, None, None] + j  # where a user at i with speed j is a step later
+        ok = (dst >= 0) & (dst < S)
+        ahead = lik[:, t + 1, :, None] * beta
+        lb = np.where(ok, ahead[rows, np.clip(dst, 0, S - 1), j], 0.0)
+        beta = (1 - change) * lb + change * (lb * prior).sum(2, keepdims=True)
+        beta /= np.maximum(beta.max((1, 2), keepdims=True), 1e-300)
+        post[:, t] = (alpha[:, t] * beta).sum(2)
+    return post / np.maximum(post.sum(2, keepdims=True), 1e-300)
+
+
+def route_track(
+    tracked: np.ndarray,
+    xy: np.ndarray,
+    lp: np.ndarray,
+    net: StreetNetwork,
+    speeds: np.ndarray,
+    change: float,
+    spacing: float,
+    min_speed: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tracks of drivers smoothed along their street routes (see the module's text).
+
+    Parameters
+    ----------
+    tracked : (B, T, 2) float, metres
+        The smoother's (or network's) track.
+    xy : (B, T, K, 2) float, metres
+        Every step's candidate grid points.
+    lp : (B, T, K) float
+        Their log-likelihoods (any per-step offset).
+    net : mmwsim.trajectories.StreetNetwork
+    speeds : (V,) float
+        Probabilities of moving ``j`` arc bins (``spacing / ROUTE_BINS`` metres) per step,
+        ``j = 0..V-1``, as measured on the training users faster than ``min_speed``.
+    change : float
+        Probability that such a user's speed changes from one step to the next.
+    spacing : float
+        The grid's spacing, metres.
+    min_speed : float
+        Metres per step: users whose median tracked step is slower are left as they are.
+
+    Returns
+    -------
+    track : (B, T, 2) float64, metres
+        ``tracked`` with every user smoothed along a route replaced.
+    on : (B,) bool
+        The users smoothed along a route.
+    """
+    tracked = np.asarray(tracked, dtype=np.float64)
+    out, on = tracked.copy(), np.zeros(len(tracked), dtype=bool)
+    B, T = tracked.shape[:2]
+    if B == 0 or T < 2:
+        return out, on
+    h = spacing / ROUTE_BINS
+    half = int(round(ROUTE_WINDOW * ROUTE_BINS))
+    prior = np.asarray(speeds, dtype=np.float64)
+    prior = (1 - ROUTE_FLOOR) * prior / prior.sum() + ROUTE_FLOOR / len(prior)
+    steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)
+    fast = np.flatnonzero(np.median(steps, axis=1) > min_speed)
+    routes = street_routes(net, tracked[fast])
+    users = []
+    for b, r in zip(fast, routes, strict=True):
+        if r is not None:
+            arc, side = _arc_of(r, tracked[b])
+            # a track that keeps to one side of the centre line is a driver in a lane beside it
+            if abs(side.mean()) <= ROUTE_SIDE * spacing:
+                users.append((b, r, arc))
+    offsets = np.arange(-half, half + 1) * h
+    for c in range(0, len(users), _CHUNK):
+        part = users[c : c + _CHUNK]
+        idx = np.array([b for b, _, _ in part])
+        centre = np.stack([np.rint(arc / h) * h for _, _, arc in part])  # (n, T)
+        pos = np.stack([_along(r, centre[k][:, None] + offsets) for k, (_, r, _) in enumerate(part)])
+        ll = _candidate_loglik(np.asarray(xy[idx], np.float64), np.asarray(lp[idx], np.float64), pos, spacing)
+        lik = np.exp(ll - ll.max(2, keepdims=True))
+        d = np.rint(np.diff(centre, axis=1) / h).astype(np.int64)
+        post = _forward_backward(lik, d, prior, change)
+        track = (post[..., None] * pos).sum(2)
+        keep = np.linalg.norm(track - tracked[idx], axis=-1).max(1) <= ROUTE_GATE * spacing
+        out[idx[keep]], on[idx[keep]] = track[keep], True
+    return out, on

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import shortest_path
+from scipy.sparse.csgraph import dijkstra
 
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
@@ -49,15 +49,16 @@ keeps to a lane beside it and is not smoothed along the centre line."""
 _CHUNK = 64  # users per forward-backward pass (chunk x window x speeds x steps float64 arrays)
 
 
-def _paths(net: StreetNetwork) -> tuple[np.ndarray, np.ndarray]:
-    """All-pairs shortest path lengths and predecessors of the street graph (cached on it)."""
-    cached = getattr(net, "_route_paths", None)
-    if cached is None:
+def _ways(net: StreetNetwork, node: int) -> tuple[np.ndarray, np.ndarray]:
+    """Shortest way lengths from ``node`` to every node of the street graph, and the predecessors
+    on them, within :data:`ROUTE_DETOUR` (beyond: infinite), so that a large city's graph costs
+    no all-pairs table."""
+    graph = getattr(net, "_route_graph", None)
+    if graph is None:
         n = len(net.nodes)
-        g = coo_matrix((net.edge_length, (net.edges[:, 0], net.edges[:, 1])), shape=(n, n)).tocsr()
-        cached = shortest_path(g, directed=False, return_predecessors=True)
-        net._route_paths = cached  # type: ignore[attr-defined]
-    return cached
+        graph = coo_matrix((net.edge_length, (net.edges[:, 0], net.edges[:, 1])), shape=(n, n)).tocsr()
+        net._route_graph = graph  # type: ignore[attr-defined]
+    return dijkstra(graph, directed=False, indices=node, return_predecessors=True, limit=ROUTE_DETOUR)
 
 
 def _nearest_edges(lines: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,26 +74,28 @@ def _nearest_edges(lines: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.nda
 def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[int] | None:
     """Nodes of the route through the edges ``seq`` (in the order the track meets them)."""
     E = net.edges
-    dist, pred = _paths(net)
     a, b = (int(x) for x in E[seq[0]])
     if len(seq) == 1:
         if (track[-1] - track[0]) @ (net.nodes[b] - net.nodes[a]) < 0:
             a, b = b, a
         return [a, b]
-    if dist[a, E[seq[1]]].min() < dist[b, E[seq[1]]].min():  # leave by the end nearer the next
+    if (
+        _ways(net, a)[0][E[seq[1]]].min() < _ways(net, b)[0][E[seq[1]]].min()
+    ):  # leave by the end nearer the next
         a, b = b, a
     nodes = [a, b]
     for x in seq[1:]:
         c = nodes[-1]
+        dist, pred = _ways(net, c)
         p, q = (int(y) for y in E[x])
-        if dist[c, p] > dist[c, q]:
+        if dist[p] > dist[q]:
             p, q = q, p
-        if not dist[c, p] <= ROUTE_DETOUR:
+        if not dist[p] <= ROUTE_DETOUR:
             return None
         way = []
         while p != c:
             way.append(p)
-            p = int(pred[c, p])
+            p = int(pred[p])
         nodes += way[::-1] + [q]
     i = 0
     while i + 2 < len(nodes):  # a street touched at a junction is no detour: x, y, x -> x

@@ -77,6 +77,17 @@ def test_vehicles_on_street_network(city):
     assert 0.9 * VEHICLE.mean_speed < moving.mean() < 1.05 * VEHICLE.mean_speed
 
 
+def test_ways_along_the_streets_are_the_shortest_within_their_limit():
+    # A square block 0-1-2-3 with a spur 2-4: from 0, node 2 is 20 m either way round.
+    nodes = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [10.0, 40.0]])
+    net = StreetNetwork(nodes, np.array([[0, 1], [1, 2], [2, 3], [3, 0], [2, 4]]))
+    length, pred = net.ways_from(0)
+    np.testing.assert_allclose(length, [0.0, 10.0, 20.0, 10.0, 50.0])
+    assert pred[4] == 2 and pred[1] == 0
+    length, pred = net.ways_from(0, limit=25.0)
+    assert np.isinf(length[4]) and pred[4] < 0 and length[2] == 20.0
+
+
 def test_segment_check_catches_thin_wall():
     """End points on both sides of a 0.5 m wall are free; the segment between them is not."""
     wall = SceneObject("wall", building_mesh([Building(49.75, 0, 50.25, 100, 20)]), get_material("concrete"))

@@ -238,7 +238,7 @@ class MotionTable(nn.Module):
         # What fast users do the step after they stop (fit_place): the median length of that
         # step, the table's units; zero until measured, i.e. a stopped user stays.
         self.register_buffer("restart_step", torch.tensor(0.0, dtype=torch.float64))
-        # How users faster than the place speed drive (fit_place), for the smoother along their
+        # How users faster than the place speed drive (fit_drives), for the smoother along their
         # street routes: the share of their steps per length, in bins of 1 / ROUTE_BINS of the
         # table's unit, and how often their step length changes; none until measured (no such
         # smoothing).

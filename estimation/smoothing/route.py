@@ -17,8 +17,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
@@ -47,28 +45,29 @@ ROUTE_SIDE = 0.5
 """Grid spacings: a track whose mean signed distance from its route's centre line is larger
 keeps to a lane beside it and is not smoothed along the centre line."""
 _CHUNK = 64  # users per forward-backward pass (chunk x window x speeds x steps float64 arrays)
+_POINTS = 4096  # positions per nearest-street search (positions x edges float64 arrays)
 
 
-def _ways(net: StreetNetwork, node: int) -> tuple[np.ndarray, np.ndarray]:
-    """Shortest way lengths from ``node`` to every node of the street graph, and the predecessors
-    on them, within :data:`ROUTE_DETOUR` (beyond: infinite), so that a large city's graph costs
-    no all-pairs table."""
-    graph = getattr(net, "_route_graph", None)
-    if graph is None:
-        n = len(net.nodes)
-        graph = coo_matrix((net.edge_length, (net.edges[:, 0], net.edges[:, 1])), shape=(n, n)).tocsr()
-        net._route_graph = graph  # type: ignore[attr-defined]
-    return dijkstra(graph, directed=False, indices=node, return_predecessors=True, limit=ROUTE_DETOUR)
+def _project(a: np.ndarray, ab: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nearest of the segments ``a (E, 2) + [0, 1] ab (E, 2)`` to every ``p (n, 2)``: its index
+    ``(n,)``, the fraction along it ``(n,)`` and the distance to it ``(n,)``."""
+    l2 = np.maximum((ab**2).sum(1), 1e-12)
+    t = np.clip(((p[:, None] - a) * ab).sum(-1) / l2, 0.0, 1.0)
+    d = np.linalg.norm(p[:, None] - (a + t[..., None] * ab), axis=-1)
+    i = d.argmin(1)
+    rows = np.arange(len(p))
+    return i, t[rows, i], d[rows, i]
 
 
 def _nearest_edges(lines: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest centre-line piece of every ``p (..., 2)`` and its distance."""
+    """Nearest centre-line piece of every ``p (..., 2)`` and its distance, in chunks so that a
+    city's thousands of streets cost no positions x streets array of all tracks at once."""
+    flat = p.reshape(-1, 2)
+    edge, dist = np.empty(len(flat), np.int64), np.empty(len(flat))
     a, ab = lines[:, 0], lines[:, 1] - lines[:, 0]
-    l2 = np.maximum((ab**2).sum(1), 1e-12)
-    t = np.clip(((p[..., None, :] - a) * ab).sum(-1) / l2, 0.0, 1.0)
-    d = np.linalg.norm(p[..., None, :] - (a + t[..., None] * ab), axis=-1)
-    e = d.argmin(-1)
-    return e, np.take_along_axis(d, e[..., None], -1)[..., 0]
+    for lo in range(0, len(flat), _POINTS):
+        edge[lo : lo + _POINTS], _, dist[lo : lo + _POINTS] = _project(a, ab, flat[lo : lo + _POINTS])
+    return edge.reshape(p.shape[:-1]), dist.reshape(p.shape[:-1])
 
 
 def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[int] | None:
@@ -79,14 +78,19 @@ def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[
         if (track[-1] - track[0]) @ (net.nodes[b] - net.nodes[a]) < 0:
             a, b = b, a
         return [a, b]
-    if (
-        _ways(net, a)[0][E[seq[1]]].min() < _ways(net, b)[0][E[seq[1]]].min()
-    ):  # leave by the end nearer the next
+    found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def ways(node: int) -> tuple[np.ndarray, np.ndarray]:
+        if node not in found:
+            found[node] = net.ways_from(node, ROUTE_DETOUR)
+        return found[node]
+
+    if ways(a)[0][E[seq[1]]].min() < ways(b)[0][E[seq[1]]].min():  # leave by the end nearer the next
         a, b = b, a
     nodes = [a, b]
     for x in seq[1:]:
         c = nodes[-1]
-        dist, pred = _ways(net, c)
+        dist, pred = ways(c)
         p, q = (int(y) for y in E[x])
         if dist[p] > dist[q]:
             p, q = q, p
@@ -160,20 +164,18 @@ def _arc_of(route: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Arc length along ``route (R, 2)`` of the nearest route point to each ``x (n, 2)``, and
     the signed distance of ``x`` to the left of the route there."""
     a, ab = route[:-1], np.diff(route, axis=0)
-    l2 = np.maximum((ab**2).sum(1), 1e-12)
-    t = np.clip(((x[:, None] - a) * ab).sum(-1) / l2, 0.0, 1.0)
-    d = np.linalg.norm(x[:, None] - (a + t[..., None] * ab), axis=-1)
-    i = d.argmin(1)
-    arc = np.r_[0.0, np.cumsum(np.sqrt(l2))]
-    w, u = x - a[i], ab[i] / np.sqrt(l2[i])[:, None]
-    return arc[i] + t[np.arange(len(x)), i] * np.sqrt(l2[i]), u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+    i, t, _ = _project(a, ab, x)
+    length = np.linalg.norm(ab, axis=1)
+    arc = np.r_[0.0, np.cumsum(length)]
+    w, u = x - a[i], ab[i] / np.maximum(length[i], 1e-12)[:, None]
+    return arc[i] + t * length[i], u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
 
 
 def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: float) -> np.ndarray:
     """Log-likelihood of the grid points nearest ``pos (n, T, S, 2)`` from each step's candidates
     ``xy (n, T, K, 2)`` with ``lp (n, T, K)``; a point that is no candidate gets its step's
     lowest candidate's (the candidates are a step's most likely points)."""
-    n, T, K = lp.shape
+    n, T = lp.shape[:2]
     # cells of the grid the candidates lie on (any candidate is one of its points)
     cells = [np.rint((p - xy.reshape(-1, 2)[0]) / spacing).astype(np.int64) for p in (xy, pos)]
     lo = np.minimum(cells[0].reshape(-1, 2).min(0), cells[1].reshape(-1, 2).min(0))

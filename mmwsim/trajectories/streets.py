@@ -11,10 +11,12 @@ the largest connected part is kept. Vehicles then drive along the centre lines (
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 import shapely
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .errors import TrajectoryError
 
@@ -194,6 +196,26 @@ class StreetNetwork:
         return cls(nodes[keep_nodes], e)
 
     # ------------------------------------------------------------------ routes
+    @cached_property
+    def _graph(self) -> csr_matrix:
+        n = len(self.nodes)
+        return coo_matrix((self.edge_length, (self.edges[:, 0], self.edges[:, 1])), shape=(n, n)).tocsr()
+
+    def ways_from(self, node: int, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Shortest ways along the streets from ``node`` to every node.
+
+        Searched only within ``limit`` metres, so that a large city's graph costs no all-pairs
+        table.
+
+        Returns
+        -------
+        length : (m,) float64
+            Metres to every node; infinite beyond ``limit`` or where no way leads.
+        predecessor : (m,) int32
+            The node before each on its way from ``node`` (negative where none).
+        """
+        return dijkstra(self._graph, directed=False, indices=node, return_predecessors=True, limit=limit)
+
     def onward(self, cur: np.ndarray, prev: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The node after ``cur (n,)`` for drivers coming from ``prev (n,)``: of ``cur``'s
         neighbours other than ``prev``, the one ``u (n,)`` (uniform numbers in [0, 1)) picks, each

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
 import torch
 
 from estimation import Estimator, TrainConfig
+from estimation.smoothing import route
 from estimation.smoothing.motion import MotionTable
 from estimation.smoothing.route import ROUTE_BINS, route_track, street_routes
 from estimation.synthetic import toy_sequence_set
@@ -79,6 +81,45 @@ def test_a_speed_change_is_followed():
     )
 
 
+@pytest.mark.parametrize("step", [6.8, 10.3])
+def test_drivers_at_speeds_of_their_own_are_followed(step):
+    # the training drivers all kept 8.3 m per step and changed speed often (corners, stops): a
+    # driver keeping a speed none of them kept, slower or faster than all of them, is followed
+    # by the motion of speeds of its own, weighed against theirs by how well each explains it;
+    # fingerprints that tell little (log-likelihood -0.5 per square metre off) leave it to motion
+    true = _drive(np.linspace(20.0, 30.0, 9), step)
+    xy, _, cells = _candidates(true)
+    lp = -0.5 * ((xy - true[..., None, :]) ** 2).sum(-1)
+    net = StreetNetwork.from_segments(L_STREETS)
+    track, on = route_track(cells, xy, lp, net, _speeds(8.3, 170), 0.4, 1.0, 5.0)
+    assert on.all()
+    assert np.linalg.norm(track - true, axis=-1).mean() < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
+
+
+def test_the_pass_is_the_exact_posterior_over_arc_and_speed():
+    # every path of a 5-bin window, 3 speeds and 3 steps enumerated: a path advances by its
+    # speed, which it keeps or draws again; the pass's posterior and evidence are the sums
+    rng = np.random.default_rng(3)
+    S, V, T, change = 5, 3, 3, 0.3
+    lik, prior, d = rng.random((1, T, S)), np.array([0.2, 0.5, 0.3]), np.array([[1, 0]])
+    post = np.zeros((T, S))
+    for i0 in range(S):
+        for js in itertools.product(range(V), repeat=T):
+            p, i = prior[js[0]] * lik[0, 0, i0], [i0]
+            for t in range(T - 1):
+                i.append(i[-1] + js[t] - d[0, t])
+                keep = (1 - change) * (js[t + 1] == js[t]) + change * prior[js[t + 1]]
+                p *= keep * lik[0, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
+            if p > 0:  # a path that leaves the window is none
+                post[np.arange(T), i] += p
+    got, alive, evidence = route._forward_backward(lik, d, prior, change)
+    assert alive[0]
+    np.testing.assert_allclose(got[0], post / post.sum(1, keepdims=True), rtol=1e-12)
+    np.testing.assert_allclose(np.exp(evidence[0]), post[0].sum(), rtol=1e-12)
+    # a window the track cannot reach from the last: no way through
+    assert not route._forward_backward(lik, np.array([[-9, 0]]), prior, change)[1][0]
+
+
 def test_users_off_the_streets_beside_them_or_slow_are_left_alone():
     net = StreetNetwork.from_segments(L_STREETS)
     off = _drive(np.array([20.0]), 8.3) + np.array([0.0, 10.0])  # 10 m from the street
@@ -88,6 +129,51 @@ def test_users_off_the_streets_beside_them_or_slow_are_left_alone():
         xy, lp, cells = _candidates(true)
         track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
         assert not on.any() and np.array_equal(track, cells)
+
+
+def test_drivers_turn_back_at_a_dead_end():
+    # west along the L's first street to its dead end at (0, 0) and back, 8.3 m per step: the
+    # street network's drivers turn there, and the route turns with them
+    x = np.abs(30.0 - 8.3 * np.arange(7))
+    true = np.stack([x, np.zeros_like(x)], -1)[None]
+    net = StreetNetwork.from_segments(L_STREETS)
+    (route,) = street_routes(net, true)
+    assert np.allclose(route[:4], [[80.0, 0.0], [60.0, 0.0], [0.0, 0.0], [60.0, 0.0]])
+    xy, lp, cells = _candidates(true)
+    track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert on.all()
+    assert np.linalg.norm(track - true, axis=-1).mean() < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
+
+
+def test_a_driver_turning_back_mid_street_is_left_alone(monkeypatch):
+    # no dead end within reach: the network's drivers never turn there, so no way along the
+    # route fits and the track stays as it was (whatever the gate)
+    monkeypatch.setattr(route, "ROUTE_GATE", np.inf)
+    x = 110.0 + 8.3 * np.r_[0, 1, 2, 3, 2, 1, 0]
+    true = np.stack([x, np.zeros_like(x)], -1)[None]
+    net = StreetNetwork.from_segments(np.array([[[0.0, 0.0], [100.0, 0.0]], [[100.0, 0.0], [200.0, 0.0]]]))
+    xy, lp, cells = _candidates(true)
+    track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert not on.any() and np.array_equal(track, cells)
+
+
+def test_a_street_halfway_between_grid_rows_reads_the_likelier_row():
+    # a 2 m grid whose rows y = 0 and y = 2 lie 1 m either side of the street: which row a
+    # driver on it reads is the grid's rounding (here y = 0, whose points tell where along the
+    # street it is); the route weighs the likelier row, not one picked by rounding from wherever
+    # the candidates start (y = 2, which tells nothing)
+    x = 40.3 + 8.3 * np.arange(7)
+    gx = 2.0 * np.rint(x / 2.0)[:, None] + 2.0 * np.arange(-3, 4)  # (T, 7)
+    xy = np.stack(np.broadcast_arrays(gx[:, None, :], np.array([2.0, 0.0])[:, None]), -1)  # rows 2, 0
+    lp = np.where(xy[..., 1] == 0.0, -10.0 * ((xy[..., 0] - x[:, None, None]) / 2.0) ** 2, -20.0)
+    xy, lp = xy.reshape(1, 7, -1, 2), lp.reshape(1, 7, -1)
+    cells = np.take_along_axis(xy, lp.argmax(-1)[..., None, None], 2)[:, :, 0]
+    net = StreetNetwork.from_segments(np.array([[[0.0, 1.0], [100.0, 1.0]], [[100.0, 1.0], [200.0, 1.0]]]))
+    speeds = np.ones(150)  # any speed up to 15 m per step, changed at every other step
+    track, on = route_track(cells, xy, lp, net, speeds, 0.5, 2.0, 5.0)
+    assert on.all()
+    assert np.abs(track[..., 1] - 1.0).max() < 1e-9
+    assert np.abs(track[..., 0] - x).mean() < 0.5 * np.abs(cells[..., 0] - x).mean()
 
 
 def test_routes_follow_the_streets_a_track_passes():

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 if TYPE_CHECKING:
@@ -32,19 +33,32 @@ ROUTE_REACH = 3.0
 ROUTE_EXTEND = 20.0
 """Metres the route runs on straight past the first and the last street it was tracked on."""
 ROUTE_FLOOR = 0.1
-"""Share of a flat density over all speeds up to the fastest measured in the speed prior, for
-drivers who keep speeds the training users did not."""
+"""Share of a flat density over all speeds up to :data:`ROUTE_FASTER` times the fastest measured
+in the speed prior, for drivers who change to a speed the training users did not keep."""
+ROUTE_FASTER = 1.5
+"""The speeds the pass weighs reach this many times the fastest measured one."""
+ROUTE_OTHER = 0.2
+"""Prior probability that a user drives at speeds of its own: each user's track is the posterior
+over the measured speeds and over a flat density of speeds, weighed by how well each explains
+its steps (our own vehicles at 7.5 or 9.5 m/s instead of 8.3: 0.30 and 0.29 m without, 0.29 and
+0.25 m with; our own at their speeds 0.1223 and 0.1233 m)."""
 ROUTE_DETOUR = 60.0
 """Metres: the longest way between two streets a track passes that the route fills in."""
-ROUTE_GATE = 1.5
+ROUTE_GATE = 4.0
 """Metres a position may move from the smoother's track; a route track that moves one farther is
-not kept (a route that does not fit the driver). In metres, not grid spacings: on the demo's 2 m
-grid, 3 m let wrong routes through (17 of 502 held-out tracks 0.3 to 1.4 m worse), 1.5 m kept the
-gain (0.58 to 0.50 m) with 4 such tracks."""
+not kept (a route that does not fit the driver: one tracked onto the wrong street). On one
+`default.zarr` network no gate and 4 m are alike (seen-area vehicles 0.123 m), 1.5 m gives back
+much of the gain (0.141 m); on the demo's held-out street one wrong route is 9 m off without a
+gate."""
 ROUTE_SIDE = 0.5
 """Grid spacings: a track whose mean signed distance from its route's centre line is larger
 keeps to a lane beside it and is not smoothed along the centre line."""
 _CHUNK = 64  # users per forward-backward pass (chunk x window x speeds x steps float64 arrays)
+_BACK = 10.0  # cost per metre a track's arc length runs back (beyond the slack), in metres of distance
+_BACK_SLACK = 0.2  # typical steps an arc length may run back unpunished (a stopped user's jitter)
+_NEAR = 1.0  # metres farther than its nearest piece of the route a position may be put on
+_TIE = 0.01  # cost per metre an arc length's growth differs from the typical step: breaks ties only
+_TIE_BAND = 1e-6  # grid spacings from halfway between grid points that count as halfway
 _POINTS = 4096  # positions per nearest-street search (positions x edges float64 arrays)
 
 
@@ -103,12 +117,28 @@ def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[
         nodes += way[::-1] + [q]
     i = 0
     while i + 2 < len(nodes):  # a street touched at a junction is no detour: x, y, x -> x
-        if nodes[i] == nodes[i + 2]:
+        if nodes[i] == nodes[i + 2] and net.degree[nodes[i + 1]] != 1:
             del nodes[i + 1 : i + 3]
             i = max(i - 1, 0)
         else:
             i += 1
-    return nodes if len(nodes) >= 2 and len(set(nodes)) == len(nodes) else None
+    return nodes if len(nodes) >= 2 and len(set(nodes)) == len(nodes) - _folds(net, nodes) else None
+
+
+def _folds(net: StreetNetwork, nodes: list[int]) -> int:
+    """How often the route ``nodes`` turns back at a dead end (x, dead end, x)."""
+    return sum(nodes[i] == nodes[i + 2] and net.degree[nodes[i + 1]] == 1 for i in range(len(nodes) - 2))
+
+
+def _turn_at_dead_ends(net: StreetNetwork, nodes: list[int], track: np.ndarray) -> list[int]:
+    """``nodes`` turned back at a dead end it starts or ends at that the track comes within
+    :data:`ROUTE_EXTEND` of, as the street network's drivers do at a dead end."""
+    near = [np.linalg.norm(track - net.nodes[nodes[k]], axis=1).min() < ROUTE_EXTEND for k in (0, -1)]
+    if net.degree[nodes[-1]] == 1 and near[1]:
+        nodes = nodes + [nodes[-2]]
+    if net.degree[nodes[0]] == 1 and near[0]:
+        nodes = [nodes[1]] + nodes
+    return nodes
 
 
 def street_routes(
@@ -126,9 +156,12 @@ def street_routes(
     Returns
     -------
     list of B ``(R, 2)`` float64 route vertices in metres (the streets' nodes in the order the
-    track drives them, the first and last pieces run on straight by :data:`ROUTE_EXTEND`), or
-    None where a position is farther than ``reach`` from every street, the streets it passes are
-    not joined within :data:`ROUTE_DETOUR`, or the route would pass a node twice (a U-turn).
+    track drives them, turning back at a dead end that the track comes within
+    :data:`ROUTE_EXTEND` of, as the network's drivers do there; the
+    first and last pieces run on straight by :data:`ROUTE_EXTEND`), or None where a position is
+    farther than ``reach`` from every street, the streets it passes are not joined within
+    :data:`ROUTE_DETOUR`, or the route would pass a node twice other than at a dead end (a U-turn
+    on a street).
     """
     tracks = np.asarray(tracks, dtype=np.float64)
     edge, dist = _nearest_edges(net.lines(), tracks)
@@ -144,6 +177,7 @@ def street_routes(
         if nodes is None:
             out.append(None)
             continue
+        nodes = _turn_at_dead_ends(net, nodes, tracks[b])
         P = net.nodes[nodes]
         ends = P[[0, -1]] - P[[1, -2]]
         ends /= np.linalg.norm(ends, axis=1, keepdims=True)
@@ -160,71 +194,140 @@ def _along(route: np.ndarray, s: np.ndarray) -> np.ndarray:
     return route[i] + f[..., None] * (route[i + 1] - route[i])
 
 
-def _arc_of(route: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Arc length along ``route (R, 2)`` of the nearest route point to each ``x (n, 2)``, and
-    the signed distance of ``x`` to the left of the route there."""
+def _arc_of(route: np.ndarray, x: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length along ``route (R, 2)`` of each ``x (T, 2)`` of a track, and the signed distance
+    of ``x`` to the left of the route there.
+
+    Each position is put on its nearest piece of the route, or one as near within :data:`_NEAR`:
+    where the route turns back at a dead end, both legs are as near, and the piece that keeps the
+    arc length growing by about the track's typical ``step`` (metres) is taken (a Viterbi pass
+    over the pieces).
+    """
     a, ab = route[:-1], np.diff(route, axis=0)
-    i, t, _ = _project(a, ab, x)
     length = np.linalg.norm(ab, axis=1)
-    arc = np.r_[0.0, np.cumsum(length)]
+    t = np.clip(((x[:, None] - a) * ab).sum(-1) / np.maximum(length**2, 1e-12), 0.0, 1.0)  # (T, S)
+    d = np.linalg.norm(x[:, None] - (a + t[..., None] * ab), axis=-1)
+    arc = np.r_[0.0, np.cumsum(length)][:-1] + t * length
+    d = np.where(d <= d.min(1, keepdims=True) + _NEAR, d, np.inf)  # only the pieces it lies on
+    cost, came = d[0], []
+    for k in range(1, len(x)):
+        move = arc[k] - arc[k - 1][:, None]  # (from, to)
+        tot = cost[:, None] + _BACK * np.maximum(-move - _BACK_SLACK * step, 0.0) + _TIE * np.abs(move - step)
+        came.append(tot.argmin(0))
+        cost = tot[came[-1], np.arange(len(a))] + d[k]
+    piece = [int(cost.argmin())]
+    for c in came[::-1]:
+        piece.append(int(c[piece[-1]]))
+    i = np.array(piece[::-1])
+    rows = np.arange(len(x))
     w, u = x - a[i], ab[i] / np.maximum(length[i], 1e-12)[:, None]
-    return arc[i] + t * length[i], u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+    return arc[rows, i], u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
 
 
 def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: float) -> np.ndarray:
     """Log-likelihood of the grid points nearest ``pos (n, T, S, 2)`` from each step's candidates
     ``xy (n, T, K, 2)`` with ``lp (n, T, K)``; a point that is no candidate gets its step's
-    lowest candidate's (the candidates are a step's most likely points)."""
+    lowest candidate's (the candidates are a step's most likely points). A position halfway
+    between grid points (a street between two rows of receivers) gets the likelier of them: which
+    one a user there reads is the grid's rounding, not the street's."""
     n, T = lp.shape[:2]
-    # cells of the grid the candidates lie on (any candidate is one of its points)
-    cells = [np.rint((p - xy.reshape(-1, 2)[0]) / spacing).astype(np.int64) for p in (xy, pos)]
-    lo = np.minimum(cells[0].reshape(-1, 2).min(0), cells[1].reshape(-1, 2).min(0))
-    span = int(max(cells[0].max(), cells[1].max()) - lo.min()) + 1
+    ref = xy.reshape(-1, 2)[0]  # any candidate is one of the grid's points
+    cand_ij = np.rint((xy - ref) / spacing).astype(np.int64)
+    u = (pos - ref) / spacing
+    near = [np.floor(u + 0.5 - _TIE_BAND).astype(np.int64), np.floor(u + 0.5 + _TIE_BAND).astype(np.int64)]
+    lo = np.minimum(cand_ij.reshape(-1, 2).min(0), near[0].reshape(-1, 2).min(0))
+    span = int(max(cand_ij.max(), near[1].max()) - lo.min()) + 1
 
-    def key(ij: np.ndarray) -> np.ndarray:
-        return (ij[..., 0] - lo[0]) * span + (ij[..., 1] - lo[1])
+    def key(i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        return (i - lo[0]) * span + (j - lo[1])
 
     step = np.arange(n * T, dtype=np.int64).reshape(n, T)
-    cand = (step[..., None] * span * span + key(cells[0])).ravel()
+    cand = (step[..., None] * span * span + key(cand_ij[..., 0], cand_ij[..., 1])).ravel()
     order = np.argsort(cand, kind="stable")
     sorted_keys, sorted_lp = cand[order], lp.reshape(-1)[order]
-    want = step[..., None] * span * span + key(cells[1])
-    j = np.clip(np.searchsorted(sorted_keys, want), 0, len(sorted_keys) - 1)
     floor = lp.min(-1)[..., None]
-    return np.where(sorted_keys[j] == want, sorted_lp[j], floor)
+    best = np.full(pos.shape[:-1], -np.inf)
+    for a in near:  # the two rows (the same one unless halfway) ...
+        for b in near:  # ... by the two columns
+            want = step[..., None] * span * span + key(a[..., 0], b[..., 1])
+            j = np.clip(np.searchsorted(sorted_keys, want), 0, len(sorted_keys) - 1)
+            best = np.maximum(best, np.where(sorted_keys[j] == want, sorted_lp[j], floor))
+    return best
 
 
-def _forward_backward(lik: np.ndarray, d: np.ndarray, prior: np.ndarray, change: float) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _forward_backward(
+    lik: np.ndarray, d: np.ndarray, prior: np.ndarray, change: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Posterior over the window's arc bins ``(n, T, S)`` of users at arc bin ``centre_t + i`` (the
     window ``i`` in ``0..S-1``) moving ``j`` bins per step (``prior (V,)``, kept with probability
-    ``1 - change``); ``lik (n, T, S)`` the steps' likelihoods, ``d (n, T-1)`` the windows' shifts."""
+    ``1 - change``); ``lik (n, T, S)`` the steps' likelihoods, ``d (n, T-1)`` the windows' shifts.
+    Also ``(n,)`` whether any way through the windows is possible at all (not where the track
+    runs back along its route farther than a window) and ``(n,)`` the log-likelihood of the steps
+    under this motion (up to a constant of the window's size).
+
+    Compiled: per user and step it touches every (bin, speed) once, where numpy's gathers over
+    the whole (users, bins, speeds) block cost ten times as much."""
     n, T, S = lik.shape
     V = len(prior)
-    j = np.arange(V)
-    rows = np.arange(n)[:, None, None]
-    i = np.arange(S)[None, :, None]
-    alpha = np.empty((n, T, S, V))
-    a = lik[:, 0, :, None] * prior
-    alpha[:, 0] = a / np.maximum(a.sum((1, 2), keepdims=True), 1e-300)
-    for t in range(T - 1):
-        src = i + d[:, t, None, None] - j  # the bin a user arriving at i with speed j came from
-        ok = (src >= 0) & (src < S)
-        moved = np.where(ok, alpha[:, t][rows, np.clip(src, 0, S - 1), j], 0.0)
-        a = (1 - change) * moved + change * moved.sum(2, keepdims=True) * prior
-        a *= lik[:, t + 1, :, None]
-        alpha[:, t + 1] = a / np.maximum(a.sum((1, 2), keepdims=True), 1e-300)
-    beta = np.ones((n, S, V))
-    post = np.empty((n, T, S))
-    post[:, -1] = alpha[:, -1].sum(2)
-    for t in range(T - 2, -1, -1):
-        dst = i - d[:, t, None, None] + j  # where a user at i with speed j is a step later
-        ok = (dst >= 0) & (dst < S)
-        ahead = lik[:, t + 1, :, None] * beta
-        lb = np.where(ok, ahead[rows, np.clip(dst, 0, S - 1), j], 0.0)
-        beta = (1 - change) * lb + change * (lb * prior).sum(2, keepdims=True)
-        beta /= np.maximum(beta.max((1, 2), keepdims=True), 1e-300)
-        post[:, t] = (alpha[:, t] * beta).sum(2)
-    return post / np.maximum(post.sum(2, keepdims=True), 1e-300)
+    post = np.zeros((n, T, S))
+    alive = np.ones(n, dtype=np.bool_)
+    evidence = np.zeros(n)
+    alpha = np.empty((T, S, V))
+    moved = np.empty(V)
+    beta = np.empty((S, V))
+    ahead = np.empty((S, V))
+    for u in range(n):
+        tot = 0.0
+        for i in range(S):
+            for j in range(V):
+                alpha[0, i, j] = lik[u, 0, i] * prior[j]
+                tot += alpha[0, i, j]
+        for t in range(T):
+            if t > 0:
+                tot = 0.0
+                for i in range(S):
+                    arrived = 0.0
+                    for j in range(V):
+                        src = i + d[u, t - 1] - j  # the bin a user arriving at i with speed j came from
+                        moved[j] = alpha[t - 1, src, j] if 0 <= src < S else 0.0
+                        arrived += moved[j]
+                    for j in range(V):
+                        a = ((1.0 - change) * moved[j] + change * arrived * prior[j]) * lik[u, t, i]
+                        alpha[t, i, j] = a
+                        tot += a
+            if tot <= 0.0:
+                alive[u] = False
+                break
+            evidence[u] += np.log(tot)
+            alpha[t] /= tot
+        if not alive[u]:
+            continue
+        beta[:] = 1.0
+        for t in range(T - 1, -1, -1):
+            if t < T - 1:
+                for k in range(S):  # a step later at k: the speed kept, or drawn again there
+                    redrawn = 0.0
+                    for j in range(V):
+                        redrawn += prior[j] * beta[k, j]
+                    for j in range(V):
+                        beta[k, j] = (1.0 - change) * beta[k, j] + change * redrawn
+                top = 0.0
+                for i in range(S):
+                    for j in range(V):
+                        dst = i - d[u, t] + j  # where a user at i with speed j is a step later
+                        ahead[i, j] = lik[u, t + 1, dst] * beta[dst, j] if 0 <= dst < S else 0.0
+                        top = max(top, ahead[i, j])
+                beta[:] = ahead / max(top, 1e-300)
+            tot = 0.0
+            for i in range(S):
+                p = 0.0
+                for j in range(V):
+                    p += alpha[t, i, j] * beta[i, j]
+                post[u, t, i] = p
+                tot += p
+            post[u, t] /= max(tot, 1e-300)
+    return post, alive, evidence
 
 
 def route_track(
@@ -273,14 +376,16 @@ def route_track(
     h = spacing / ROUTE_BINS
     half = int(round(ROUTE_WINDOW * ROUTE_BINS))
     prior = np.asarray(speeds, dtype=np.float64)
-    prior = (1 - ROUTE_FLOOR) * prior / prior.sum() + ROUTE_FLOOR / len(prior)
+    prior = np.r_[prior / prior.sum(), np.zeros(int(round((ROUTE_FASTER - 1) * len(prior))))]
+    flat = np.full(len(prior), 1.0 / len(prior))
+    prior = (1 - ROUTE_FLOOR) * prior + ROUTE_FLOOR * flat
     steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)
     fast = np.flatnonzero(np.median(steps, axis=1) > min_speed)
     routes = street_routes(net, tracked[fast])
     users = []
     for b, r in zip(fast, routes, strict=True):
         if r is not None:
-            arc, side = _arc_of(r, tracked[b])
+            arc, side = _arc_of(r, tracked[b], float(np.median(steps[b])))
             # a track that keeps to one side of the centre line is a driver in a lane beside it
             if abs(side.mean()) <= ROUTE_SIDE * spacing:
                 users.append((b, r, arc))
@@ -293,8 +398,15 @@ def route_track(
         ll = _candidate_loglik(np.asarray(xy[idx], np.float64), np.asarray(lp[idx], np.float64), pos, spacing)
         lik = np.exp(ll - ll.max(2, keepdims=True))
         d = np.rint(np.diff(centre, axis=1) / h).astype(np.int64)
-        post = _forward_backward(lik, d, prior, change)
+        post, alive, ev = _forward_backward(lik, d, prior, change)
+        other, alive_other, ev_other = _forward_backward(lik, d, flat, change)
+        # each user's posterior over both motions, weighed by how well each explains its steps
+        with np.errstate(invalid="ignore", over="ignore"):
+            w = 1.0 / (1.0 + np.exp((ev - ev_other) + np.log((1 - ROUTE_OTHER) / ROUTE_OTHER)))
+        w = np.where(alive & alive_other, w, np.where(alive, 0.0, 1.0))
+        post = (1 - w)[:, None, None] * post + w[:, None, None] * other
+        alive |= alive_other
         track = (post[..., None] * pos).sum(2)
-        keep = np.linalg.norm(track - tracked[idx], axis=-1).max(1) <= ROUTE_GATE
+        keep = alive & (np.linalg.norm(track - tracked[idx], axis=-1).max(1) <= ROUTE_GATE)
         out[idx[keep]], on[idx[keep]] = track[keep], True
     return out, on

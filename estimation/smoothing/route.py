@@ -9,7 +9,9 @@ streets, :func:`route_track` builds the route through the streets it was tracked
 forward-backward pass over (arc length, speed) on a fine grid along that route: the speed is
 kept from step to step or, with the measured probability of a change, drawn again from the
 measured speeds; each step weighs its arc lengths by the fingerprint likelihood of the candidate
-grid point there. The track is the posterior mean position at every step.
+grid point there. The track is the posterior mean position at every step, mixed per user with
+the pass under a flat density of speeds by how well each explains its steps (drivers who keep
+speeds of their own). Routes turn back at dead ends, as the street network's drivers do there.
 """
 
 from __future__ import annotations
@@ -40,20 +42,20 @@ ROUTE_FASTER = 1.5
 ROUTE_OTHER = 0.2
 """Prior probability that a user drives at speeds of its own: each user's track is the posterior
 over the measured speeds and over a flat density of speeds, weighed by how well each explains
-its steps (our own vehicles at 7.5 or 9.5 m/s instead of 8.3: 0.30 and 0.29 m without, 0.29 and
-0.25 m with; our own at their speeds 0.1223 and 0.1233 m)."""
+its steps (our own vehicles at 7.5 and 9.5 m/s instead of 8.3: 0.2948 and 0.2782 m without,
+0.2867 and 0.2455 m with; ours at their own speeds 0.1215 and 0.1225 m on the seen area)."""
 ROUTE_DETOUR = 60.0
 """Metres: the longest way between two streets a track passes that the route fills in."""
 ROUTE_GATE = 4.0
 """Metres a position may move from the smoother's track; a route track that moves one farther is
 not kept (a route that does not fit the driver: one tracked onto the wrong street). On one
-`default.zarr` network no gate and 4 m are alike (seen-area vehicles 0.123 m), 1.5 m gives back
-much of the gain (0.141 m); on the demo's held-out street one wrong route is 9 m off without a
-gate."""
+`default.zarr` network no gate and 4 m are alike (seen-area vehicles 0.1225 m), 1.5 m gives back
+an eighth of the gain (0.1391 m); on the demo's held-out street one wrong route is 9.4 m off without
+a gate."""
 ROUTE_SIDE = 0.5
 """Grid spacings: a track whose mean signed distance from its route's centre line is larger
 keeps to a lane beside it and is not smoothed along the centre line."""
-_CHUNK = 64  # users per forward-backward pass (chunk x window x speeds x steps float64 arrays)
+_CHUNK = 64  # users per pass (chunk x steps x window positions and likelihoods)
 _BACK = 10.0  # cost per metre a track's arc length runs back (beyond the slack), in metres of distance
 _BACK_SLACK = 0.2  # typical steps an arc length may run back unpunished (a stopped user's jitter)
 _NEAR = 1.0  # metres farther than its nearest piece of the route a position may be put on

@@ -536,7 +536,7 @@ class Estimator(nn.Module):
         smoothed along their routes (:attr:`route_tracking`), from the candidates of the
         inputs ``x``; as it is where that does not apply."""
         fine = self._lane_motion()[1]
-        net = self._street_network(self.route_tracking)
+        net = self._street_network() if self.route_tracking else None
         if net is None or not len(fine.route_speeds) or tracked.shape[1] < 2:
             return tracked
         xy, post = x[0], x[1]
@@ -560,13 +560,13 @@ class Estimator(nn.Module):
         fine = self._lane_motion()[1] if self.uses_grid else None
         if fine is None or not bool(fine.fitted):
             return extrapolate(tracked, horizon)
-        return forecast_tracks(tracked, horizon, fine, float(self.net.grid_step), self._street_network())
+        net = self._street_network() if self.street_forecast else None
+        return forecast_tracks(tracked, horizon, fine, float(self.net.grid_step), net)
 
-    def _street_network(self, wanted: bool | None = None) -> StreetNetwork | None:
-        """The attached street map as a graph where :meth:`forecast` follows its streets (see
-        :attr:`street_forecast`; ``wanted`` instead of it for another use), made again only when
-        the map changes."""
-        streets = self._map_lanes() if (self.street_forecast if wanted is None else wanted) else None
+    def _street_network(self) -> StreetNetwork | None:
+        """The attached street map as a graph (for :meth:`forecast` and the route smoother), made
+        again only when the map changes; None without one."""
+        streets = self._map_lanes()
         if streets is None:
             return None
         key = hashlib.sha1(np.ascontiguousarray(streets[0]).tobytes()).digest()

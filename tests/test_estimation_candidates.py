@@ -325,8 +325,8 @@ def test_an_attached_street_map_gives_lanes_where_no_training_user_drove():
     assert graph is est._street_network() and np.array_equal(graph.lines(), street)
     driver = torch.tensor([[[18.0, 20.0], [24.0, 20.0]]])  # 6 m per step, 7 m before the dead end
     assert torch.allclose(est.forecast(driver, 2), torch.tensor([[[30.0, 20.0], [26.0, 20.0]]]))
-    est.street_forecast = False
-    assert est._street_network() is None
+    est.street_forecast = False  # carried along the lanes instead: no turn at the dead end
+    assert est.forecast(driver, 2)[0, 1, 0] > 35.0
     est.street_forecast = True
     est.street_lanes = False
     assert est._lane_motion() == (net.motion, net.motion_fine) and est._street_network() is None

@@ -220,7 +220,7 @@ def test_estimator_smooths_its_drivers_along_the_attached_map():
         cells,
         xy,
         lp,
-        est._street_network(True),
+        est._street_network(),
         fine.route_speeds.numpy(),
         float(fine.route_change),
         1.0,

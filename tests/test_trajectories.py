@@ -86,6 +86,9 @@ def test_ways_along_the_streets_are_the_shortest_within_their_limit():
     assert pred[4] == 2 and pred[1] == 0
     length, pred = net.ways_from(0, limit=25.0)
     assert np.isinf(length[4]) and pred[4] < 0 and length[2] == 20.0
+    # the nearest edge of points beside them, and past the spur's end (its foot at the end)
+    edge, dist = net.nearest_edges(np.array([[[5.0, -1.0], [11.0, 30.0], [10.0, 43.0]]]))
+    assert edge.tolist() == [[0, 4, 4]] and np.allclose(dist, [[1.0, 1.0, 3.0]])
 
 
 def test_segment_check_catches_thin_wall():

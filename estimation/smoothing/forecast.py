@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from mmwsim.trajectories import segment_feet
+
 from .motion import RESTART_SHARE
 
 if TYPE_CHECKING:
@@ -153,9 +155,8 @@ def _nearest_streets(
     n2 = (ab**2).sum(-1)
     out = []
     for lo in range(0, len(x), _STREET_CHUNK):
-        xs, ds = x[lo : lo + _STREET_CHUNK, None], d[lo : lo + _STREET_CHUNK, None]
-        t = np.clip(((xs - a) * ab).sum(-1) / np.maximum(n2, 1e-18), 0.0, 1.0)
-        dist = np.linalg.norm(xs - (a + t[..., None] * ab), axis=-1)
+        ds = d[lo : lo + _STREET_CHUNK, None]
+        t, dist = segment_feet(x[lo : lo + _STREET_CHUNK], a, ab)
         cos = (ds * ab).sum(-1) / np.maximum(np.linalg.norm(ds, axis=-1) * np.sqrt(n2), 1e-18)
         k = np.argmin(dist + STREET_TURN * (1.0 - np.abs(cos)), axis=1)
         r = np.arange(len(k))

@@ -20,6 +20,9 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
+from scipy.special import expit
+
+from mmwsim.trajectories import segment_feet
 
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
@@ -61,29 +64,6 @@ _BACK_SLACK = 0.2  # typical steps an arc length may run back unpunished (a stop
 _NEAR = 1.0  # metres farther than its nearest piece of the route a position may be put on
 _TIE = 0.01  # cost per metre an arc length's growth differs from the typical step: breaks ties only
 _TIE_BAND = 1e-6  # grid spacings from halfway between grid points that count as halfway
-_POINTS = 4096  # positions per nearest-street search (positions x edges float64 arrays)
-
-
-def _project(a: np.ndarray, ab: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The nearest of the segments ``a (E, 2) + [0, 1] ab (E, 2)`` to every ``p (n, 2)``: its index
-    ``(n,)``, the fraction along it ``(n,)`` and the distance to it ``(n,)``."""
-    l2 = np.maximum((ab**2).sum(1), 1e-12)
-    t = np.clip(((p[:, None] - a) * ab).sum(-1) / l2, 0.0, 1.0)
-    d = np.linalg.norm(p[:, None] - (a + t[..., None] * ab), axis=-1)
-    i = d.argmin(1)
-    rows = np.arange(len(p))
-    return i, t[rows, i], d[rows, i]
-
-
-def _nearest_edges(lines: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest centre-line piece of every ``p (..., 2)`` and its distance, in chunks so that a
-    city's thousands of streets cost no positions x streets array of all tracks at once."""
-    flat = p.reshape(-1, 2)
-    edge, dist = np.empty(len(flat), np.int64), np.empty(len(flat))
-    a, ab = lines[:, 0], lines[:, 1] - lines[:, 0]
-    for lo in range(0, len(flat), _POINTS):
-        edge[lo : lo + _POINTS], _, dist[lo : lo + _POINTS] = _project(a, ab, flat[lo : lo + _POINTS])
-    return edge.reshape(p.shape[:-1]), dist.reshape(p.shape[:-1])
 
 
 def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[int] | None:
@@ -166,7 +146,7 @@ def street_routes(
     on a street).
     """
     tracks = np.asarray(tracks, dtype=np.float64)
-    edge, dist = _nearest_edges(net.lines(), tracks)
+    edge, dist = net.nearest_edges(tracks)
     out: list[np.ndarray | None] = []
     # One route per user: a few graph steps each, from the edges the vectorised search found.
     for b in range(len(tracks)):
@@ -207,8 +187,7 @@ def _arc_of(route: np.ndarray, x: np.ndarray, step: float) -> tuple[np.ndarray, 
     """
     a, ab = route[:-1], np.diff(route, axis=0)
     length = np.linalg.norm(ab, axis=1)
-    t = np.clip(((x[:, None] - a) * ab).sum(-1) / np.maximum(length**2, 1e-12), 0.0, 1.0)  # (T, S)
-    d = np.linalg.norm(x[:, None] - (a + t[..., None] * ab), axis=-1)
+    t, d = segment_feet(x, a, ab)  # (T, pieces)
     arc = np.r_[0.0, np.cumsum(length)][:-1] + t * length
     d = np.where(d <= d.min(1, keepdims=True) + _NEAR, d, np.inf)  # only the pieces it lies on
     cost, came = d[0], []
@@ -403,8 +382,7 @@ def route_track(
         post, alive, ev = _forward_backward(lik, d, prior, change)
         other, alive_other, ev_other = _forward_backward(lik, d, flat, change)
         # each user's posterior over both motions, weighed by how well each explains its steps
-        with np.errstate(invalid="ignore", over="ignore"):
-            w = 1.0 / (1.0 + np.exp((ev - ev_other) + np.log((1 - ROUTE_OTHER) / ROUTE_OTHER)))
+        w = expit(ev_other - ev + np.log(ROUTE_OTHER / (1 - ROUTE_OTHER)))
         w = np.where(alive & alive_other, w, np.where(alive, 0.0, 1.0))
         post = (1 - w)[:, None, None] * post + w[:, None, None] * other
         alive |= alive_other

@@ -23,7 +23,7 @@ from .record import log_trajectories
 from .sequences import SequenceLoader, pdp_sequences
 from .splits import SPLITS, BlockFolds, block_folds, split, touches_region
 from .store import is_trajectory_store, list_splits, read_trajectories, split_attrs, write_trajectories
-from .streets import StreetNetwork
+from .streets import StreetNetwork, segment_feet
 from .trajectories import Trajectories
 
 __all__ = [
@@ -38,6 +38,7 @@ __all__ = [
     "BlockFolds",
     "SequenceLoader",
     "StreetNetwork",
+    "segment_feet",
     "TrajectoryError",
     "Trajectories",
     "block_folds",

@@ -20,9 +20,31 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .errors import TrajectoryError
 
-__all__ = ["STREET_HALF_WIDTH", "StreetNetwork"]
+__all__ = ["STREET_HALF_WIDTH", "StreetNetwork", "segment_feet"]
 
 STREET_HALF_WIDTH = 4.0  # metres of clearance a centre line keeps from the buildings, by default
+_POINTS = 4096  # points per nearest-edge search (points x edges float64 arrays)
+
+
+def segment_feet(points: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where every point's foot lies on every segment ``a + [0, 1] ab``.
+
+    Parameters
+    ----------
+    points : (n, 2) float
+        Metres.
+    a, ab : (e, 2) float
+        The segments' first ends and their vectors to the second, metres.
+
+    Returns
+    -------
+    share : (n, e) float64
+        The foot's share along the segment, in [0, 1].
+    distance : (n, e) float64
+        Metres from the point to its foot.
+    """
+    share = np.clip(((points[:, None] - a) * ab).sum(-1) / np.maximum((ab**2).sum(-1), 1e-18), 0.0, 1.0)
+    return share, np.linalg.norm(points[:, None] - (a + share[..., None] * ab), axis=-1)
 
 
 class StreetNetwork:
@@ -56,6 +78,21 @@ class StreetNetwork:
     def total_length(self) -> float:
         """Summed length of the centre lines, metres."""
         return float(self.edge_length.sum())
+
+    def nearest_edges(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The edge nearest to every ``points (..., 2)`` (metres) and the distance to it, both
+        ``(...)``; searched in chunks, so a city's thousands of edges cost no points x edges
+        array of all points at once."""
+        flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        edge, dist = np.empty(len(flat), np.int64), np.empty(len(flat))
+        a = self.nodes[self.edges[:, 0]]
+        ab = self.nodes[self.edges[:, 1]] - a
+        for lo in range(0, len(flat), _POINTS):
+            d = segment_feet(flat[lo : lo + _POINTS], a, ab)[1]
+            edge[lo : lo + _POINTS] = d.argmin(1)
+            dist[lo : lo + _POINTS] = d[np.arange(len(d)), edge[lo : lo + _POINTS]]
+        shape = np.shape(points)[:-1]
+        return edge.reshape(shape), dist.reshape(shape)
 
     def lines(self) -> np.ndarray:
         """(e, 2, 2) float64 end points of every edge (for drawing and tests)."""

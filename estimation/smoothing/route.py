@@ -50,8 +50,9 @@ ROUTE_FASTER = 1.5
 ROUTE_OTHER = 0.2
 """Prior probability that a user drives at speeds of its own: each user's track is the posterior
 over the measured speeds and over a flat density of speeds, weighed by how well each explains
-its steps (our own vehicles at 7.5 and 9.5 m/s instead of 8.3: 0.2948 and 0.2782 m without,
-0.2867 and 0.2455 m with; ours at their own speeds 0.1215 and 0.1225 m on the seen area)."""
+its steps (measured with the second version's chord speeds and flat share of 0.1: our own
+vehicles at 7.5 and 9.5 m/s instead of 8.3 0.2948 and 0.2782 m without, 0.2867 and 0.2455 m with;
+ours at their own speeds 0.1215 and 0.1225 m on the seen area)."""
 ROUTE_DETOUR = 60.0
 """Metres: the longest way between two streets a track passes that the route fills in."""
 ROUTE_GATE = 4.0

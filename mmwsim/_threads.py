@@ -13,7 +13,9 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
-__all__ = ["cores", "threads", "set_threads", "thread_map", "pieces"]
+import numpy as np
+
+__all__ = ["cores", "threads", "set_threads", "thread_map", "pieces", "batch_map"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -84,3 +86,20 @@ def pieces(n: int, min_piece: int, max_piece: int | None = None) -> list[slice]:
         k = max(k, -(-n // max_piece))
     step = -(-n // k) if n else 1
     return [slice(s, min(n, s + step)) for s in range(0, n, step)]
+
+
+def batch_map(kernel: Callable, n_batched: int, *args):
+    """``kernel(*args)`` over slices of the batch (the first ``n_batched`` arguments' first axis)
+    on the process's threads, the slices' results joined along that axis (each of a tuple's).
+
+    For compiled kernels that release the GIL and treat every item of the batch alone, so the
+    result is the same for any number of threads. Items differ in cost, so with several threads
+    the batch goes in slices of at most 32 items, taken by whichever thread is free."""
+    B = args[0].shape[0]
+    parts = pieces(B, 32, 32) if threads() > 1 else [slice(0, B)]
+    if len(parts) == 1:
+        return kernel(*args)
+    outs = thread_map(lambda s: kernel(*(a[s] for a in args[:n_batched]), *args[n_batched:]), parts)
+    if isinstance(outs[0], tuple):
+        return tuple(np.concatenate(o) for o in zip(*outs, strict=True))
+    return np.concatenate(outs)

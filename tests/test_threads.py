@@ -159,3 +159,15 @@ def test_a_forked_child_starts_its_own_threads(restore_threads):
         os.kill(pid, signal.SIGKILL)
     os.waitpid(pid, 0)
     assert got == b"1", "the forked child's thread_map hung"
+
+
+def test_batch_map_joins_the_slices_of_any_number_of_threads(restore_threads):
+    def kernel(a, b, scale):
+        return a * scale, b.sum(1)
+
+    a, b = np.arange(100.0), np.arange(300.0).reshape(100, 3)
+    for threads in (1, 2, 3):
+        _threads.set_threads(threads)
+        got = _threads.batch_map(kernel, 2, a, b, 2.0)
+        assert np.array_equal(got[0], 2.0 * a) and np.array_equal(got[1], b.sum(1))
+        assert np.array_equal(_threads.batch_map(lambda a, s: a + s, 1, a, 1.0), a + 1.0)

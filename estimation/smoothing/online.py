@@ -34,7 +34,7 @@ import math
 import numpy as np
 import torch
 
-from mmwsim._threads import pieces, thread_map, threads
+from mmwsim._threads import batch_map
 
 from ..matching import GUIDE
 from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_step, sample_paths
@@ -65,22 +65,6 @@ VAGUE_GATE = 10.0
 
 def _log_softmax(x: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.asarray(torch.log_softmax(torch.from_numpy(x), dim=axis))
-
-
-def _threaded(kernel, n_batched: int, *args):
-    """``kernel(*args)`` over slices of the batch (the first ``n_batched`` arguments' first axis)
-    on the process's threads: the kernels release the GIL and treat every sequence alone, so the
-    result is the same for any number of threads. Sequences differ in cost (how many pairs
-    matter), so with several threads the batch goes in slices of at most 32 sequences, taken
-    by whichever thread is free."""
-    B = args[0].shape[0]
-    parts = pieces(B, 32, 32) if threads() > 1 else [slice(0, B)]
-    if len(parts) == 1:
-        return kernel(*args)
-    outs = thread_map(lambda s: kernel(*(a[s] for a in args[:n_batched]), *args[n_batched:]), parts)
-    if isinstance(outs[0], tuple):
-        return tuple(np.concatenate(o) for o in zip(*outs, strict=True))
-    return np.concatenate(outs)
 
 
 class _Steps:
@@ -131,7 +115,7 @@ class _Beam:
         if t == 0:
             pairs, marg = None, _log_softmax(lp)
         elif t == 1:
-            *pairs, marg = _threaded(
+            *pairs, marg = batch_map(
                 pair_start,
                 4,
                 self.xy.step(0),
@@ -144,7 +128,7 @@ class _Beam:
                 m.place,
             )
         else:
-            *pairs, marg = _threaded(
+            *pairs, marg = batch_map(
                 pair_forward, 7, self.xy.step(-2), self.xy.step(-1), xy, *(p.step(-1) for p in self._pairs), lp,
                 self.beam, m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
             )  # fmt: skip
@@ -175,7 +159,7 @@ class _Beam:
         arrays = [self.points(T), self.likelihoods(T), *(p.upto(T - 1) for p in self._pairs)]
         if rows is not None:
             arrays = [a[rows] for a in arrays]
-        return _threaded(
+        return batch_map(
             sample_paths, 5, *arrays, T, n, seed, m.speed_edges, m.headings, m.heading_slopes,
             m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
         )  # fmt: skip
@@ -188,7 +172,7 @@ class _Beam:
         if longer:
             m, T_max = self.m, max(longer)
             pi, ci, la = (p.upto(T_max - 1) for p in self._pairs)
-            rows = _threaded(
+            rows = batch_map(
                 beam_smooth, 5, self.points(T_max), self.likelihoods(T_max), pi, ci, la,
                 np.array(longer, np.int64), m.speed_edges, m.headings, m.heading_slopes, m.accel_table,
                 m.bin, m.reach, m.place, m.accel_prob,
@@ -415,7 +399,7 @@ class CandidateFilter:
         if self._rw is None:
             rw = np.repeat(lp[..., None], len(self._inv_two_s2), -1)
         else:
-            rw = _threaded(rw_step, 4, self.cells.xy.step(-1), self._rw, xy, lp, self._inv_two_s2)
+            rw = batch_map(rw_step, 4, self.cells.xy.step(-1), self._rw, xy, lp, self._inv_two_s2)
         # A stable sort keeps ties in the matcher's order, so the result does not depend on the batch.
         keep = np.argsort(-rw.max(-1), axis=1, kind="stable")[:, : self.k]
         kxy = np.take_along_axis(xy, keep[..., None], 1)
@@ -466,7 +450,7 @@ class CandidateFilter:
             idx = fine.sample(T, self.memory_paths, rows)
             mem = self.memory
             # the tables as stored (float32, no copy): the kernel sums them in float64
-            out[rows] = _threaded(
+            out[rows] = batch_map(
                 memory_shift, 2, xy[rows], idx, mem.log_ratio.numpy(), mem.log_ratio_two.numpy(),
                 mem.n_sub, mem.edges.numpy(), mem.reach,
             )  # fmt: skip

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from mmwsim.trajectories import segment_feet
+from mmwsim._threads import batch_map
 
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
@@ -181,10 +181,24 @@ def street_routes(
 def _along(route: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Positions ``(..., 2)`` at arc lengths ``s (...)`` along ``route (R, 2)`` (run on straight
     past its ends)."""
-    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))]
-    i = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
-    f = (s - arc[i]) / np.maximum(arc[i + 1] - arc[i], 1e-12)
-    return route[i] + f[..., None] * (route[i + 1] - route[i])
+    s = np.asarray(s, dtype=np.float64)
+    return _along_flat(np.ascontiguousarray(route, dtype=np.float64), s.ravel()).reshape(*s.shape, 2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _along_flat(route: np.ndarray, s: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`_along` of a flat ``s (n,)``: compiled, as it runs once per line weighed."""
+    R = route.shape[0]
+    arc = np.zeros(R)
+    for r in range(1, R):
+        arc[r] = arc[r - 1] + np.hypot(route[r, 0] - route[r - 1, 0], route[r, 1] - route[r - 1, 1])
+    out = np.empty((len(s), 2))
+    for n in range(len(s)):
+        i = min(max(np.searchsorted(arc, s[n], side="right") - 1, 0), R - 2)
+        f = (s[n] - arc[i]) / max(arc[i + 1] - arc[i], 1e-12)
+        for c in range(2):
+            out[n, c] = route[i, c] + f * (route[i + 1, c] - route[i, c])
+    return out
 
 
 def _offset(route: np.ndarray, left: float) -> np.ndarray:
@@ -206,33 +220,60 @@ def _offset(route: np.ndarray, left: float) -> np.ndarray:
     return np.vstack([route[0] + left * n[0], inner, route[-1] + left * n[-1]])
 
 
-def _arc_of(route: np.ndarray, x: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+@numba.njit(cache=True, nogil=True)
+def _arc_of(
+    route: np.ndarray, x: np.ndarray, step: float
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """Arc length along ``route (R, 2)`` of each ``x (T, 2)`` of a track, and the signed distance
     of ``x`` to the left of the route there.
 
     Each position is put on its nearest piece of the route, or one as near within :data:`_NEAR`:
     where the route turns back at a dead end, both legs are as near, and the piece that keeps the
     arc length growing by about the track's typical ``step`` (metres) is taken (a Viterbi pass
-    over the pieces).
+    over the pieces; ties go to the first piece). Compiled: it runs once per line weighed.
     """
-    a, ab = route[:-1], np.diff(route, axis=0)
-    length = np.linalg.norm(ab, axis=1)
-    t, d = segment_feet(x, a, ab)  # (T, pieces)
-    arc = np.r_[0.0, np.cumsum(length)][:-1] + t * length
-    d = np.where(d <= d.min(1, keepdims=True) + _NEAR, d, np.inf)  # only the pieces it lies on
-    cost, came = d[0], []
-    for k in range(1, len(x)):
-        move = arc[k] - arc[k - 1][:, None]  # (from, to)
-        tot = cost[:, None] + _BACK * np.maximum(-move - _BACK_SLACK * step, 0.0) + _TIE * np.abs(move - step)
-        came.append(tot.argmin(0))
-        cost = tot[came[-1], np.arange(len(a))] + d[k]
-    piece = [int(cost.argmin())]
-    for c in came[::-1]:
-        piece.append(int(c[piece[-1]]))
-    i = np.array(piece[::-1])
-    rows = np.arange(len(x))
-    w, u = x - a[i], ab[i] / np.maximum(length[i], 1e-12)[:, None]
-    return arc[rows, i], u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+    T, P = x.shape[0], route.shape[0] - 1
+    start, length = np.zeros(P), np.empty(P)
+    for p in range(P):
+        length[p] = np.hypot(route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1])
+        if p:
+            start[p] = start[p - 1] + length[p - 1]
+    arc, dist = np.empty((T, P)), np.empty((T, P))
+    for k in range(T):
+        for p in range(P):
+            ab0, ab1 = route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1]
+            w0, w1 = x[k, 0] - route[p, 0], x[k, 1] - route[p, 1]
+            share = min(max((w0 * ab0 + w1 * ab1) / max(ab0 * ab0 + ab1 * ab1, 1e-18), 0.0), 1.0)
+            arc[k, p] = start[p] + share * length[p]
+            dist[k, p] = np.hypot(w0 - share * ab0, w1 - share * ab1)
+        near = dist[k].min() + _NEAR
+        for p in range(P):
+            if dist[k, p] > near:  # only the pieces it lies on
+                dist[k, p] = np.inf
+    cost, nxt = dist[0].copy(), np.empty(P)
+    came = np.zeros((T, P), dtype=np.int64)
+    for k in range(1, T):
+        for to in range(P):
+            best, arg = np.inf, 0
+            for p in range(P):
+                move = arc[k, to] - arc[k - 1, p]
+                c = cost[p] + _BACK * max(-move - _BACK_SLACK * step, 0.0) + _TIE * abs(move - step)
+                if c < best:
+                    best, arg = c, p
+            came[k, to], nxt[to] = arg, best + dist[k, to]
+        cost[:] = nxt
+    piece = np.empty(T, dtype=np.int64)
+    piece[T - 1] = np.argmin(cost)
+    for k in range(T - 1, 0, -1):
+        piece[k - 1] = came[k, piece[k]]
+    out, side = np.empty(T), np.empty(T)
+    for k in range(T):
+        p = piece[k]
+        u0, u1 = route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1]
+        norm = max(length[p], 1e-12)
+        out[k] = arc[k, p]
+        side[k] = (u0 * (x[k, 1] - route[p, 1]) - u1 * (x[k, 0] - route[p, 0])) / norm
+    return out, side
 
 
 def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: float) -> np.ndarray:
@@ -277,66 +318,122 @@ def _forward_backward(
     runs back along its route farther than a window) and ``(n,)`` the log-likelihood of the steps
     under this motion (up to a constant of the window's size).
 
-    Compiled: per user and step it touches every (bin, speed) once, where numpy's gathers over
-    the whole (users, bins, speeds) block cost ten times as much."""
+    Compiled, as numpy's gathers over the whole (users, bins, speeds) block cost ten times as
+    much. Only the speeds that keep a user within the windows at some step (``d_t - S < j <
+    d_t + S``, about half of them for a fast driver) are carried: a user drawing any other speed
+    leaves the windows with its next step, so those speeds enter the evidence in closed form and
+    no posterior (at the last step their share is the same at every bin). A user at bin ``i``
+    moves in from, and on to, only the ``S`` speeds that keep it within the windows, so per
+    step it touches about ``S^2`` (bin, speed) pairs, each speed's as one contiguous row."""
     n, T, S = lik.shape
     V = len(prior)
     post = np.zeros((n, T, S))
     alive = np.ones(n, dtype=np.bool_)
     evidence = np.zeros(n)
-    alpha = np.empty((T, S, V))
-    moved = np.empty(V)
-    beta = np.empty((S, V))
-    ahead = np.empty((S, V))
+    # alpha_t(speed jlo + w, bin i) = redrawn[t, i] prior[jlo + w] + kept[t, w, i]. A user keeping
+    # speed jlo + w from step t - 1 to t moves by shift = jlo + w - d[t - 1] bins: kept[t, w] is
+    # kept[t - 1, w] shifted (a contiguous row, as beta's rows are a step back), defined only at
+    # the bins a user arrives at from within the window before (its "reach", never read outside)
+    redrawn = np.empty((T, S))
+    kept = np.empty((T, V, S))
+    beta = np.empty((V, S))
+    arrived = np.empty(S)
+    again = np.empty(S)
     for u in range(n):
+        lo_d, hi_d = d[u, 0], d[u, 0]
+        for t in range(1, T - 1):
+            lo_d, hi_d = min(lo_d, d[u, t]), max(hi_d, d[u, t])
+        jlo, jhi = max(0, lo_d - (S - 1)), min(V - 1, hi_d + (S - 1))
+        W = max(jhi - jlo + 1, 0)
+        p_in = 0.0
+        for w in range(W):
+            p_in += prior[jlo + w]
+        p_all = 0.0
+        for j in range(V):
+            p_all += prior[j]
         tot = 0.0
         for i in range(S):
-            for j in range(V):
-                alpha[0, i, j] = lik[u, 0, i] * prior[j]
-                tot += alpha[0, i, j]
+            redrawn[0, i] = lik[u, 0, i]  # the first step's speed is drawn from the prior
+            tot += lik[u, 0, i] * p_all
         for t in range(T):
             if t > 0:
+                arrived[:] = 0.0
+                for w in range(W):
+                    shift = jlo + w - d[u, t - 1]
+                    before = jlo + w - d[u, t - 2] if t > 1 else 0  # row w's reach at t - 1
+                    for i in range(max(0, shift), min(S - 1, shift + S - 1) + 1):
+                        a = redrawn[t - 1, i - shift] * prior[jlo + w]
+                        if t > 1 and 0 <= i - shift - before < S:
+                            a += kept[t - 1, w, i - shift]
+                        arrived[i] += a
+                        kept[t, w, i] = (1.0 - change) * a * lik[u, t, i]
                 tot = 0.0
                 for i in range(S):
-                    arrived = 0.0
-                    for j in range(V):
-                        src = i + d[u, t - 1] - j  # the bin a user arriving at i with speed j came from
-                        moved[j] = alpha[t - 1, src, j] if 0 <= src < S else 0.0
-                        arrived += moved[j]
-                    for j in range(V):
-                        a = ((1.0 - change) * moved[j] + change * arrived * prior[j]) * lik[u, t, i]
-                        alpha[t, i, j] = a
-                        tot += a
+                    redrawn[t, i] = change * arrived[i] * lik[u, t, i]
+                    tot += (1.0 - change + change * p_all) * arrived[i] * lik[u, t, i]
             if tot <= 0.0:
                 alive[u] = False
                 break
             evidence[u] += np.log(tot)
-            alpha[t] /= tot
+            redrawn[t] /= tot
+            if t > 0:
+                for w in range(W):
+                    shift = jlo + w - d[u, t - 1]
+                    for i in range(max(0, shift), min(S - 1, shift + S - 1) + 1):
+                        kept[t, w, i] /= tot
         if not alive[u]:
             continue
-        beta[:] = 1.0
         for t in range(T - 1, -1, -1):
             if t < T - 1:
-                for k in range(S):  # a step later at k: the speed kept, or drawn again there
-                    redrawn = 0.0
-                    for j in range(V):
-                        redrawn += prior[j] * beta[k, j]
-                    for j in range(V):
-                        beta[k, j] = (1.0 - change) * beta[k, j] + change * redrawn
+                # beta_t(w, i) = lik_t+1(i + shift) ((1 - c) beta_t+1(w, i + shift) + again(i + shift)),
+                # defined where i + shift lies in the window; beta_T-1 is 1 everywhere
+                if t == T - 2:
+                    again[:] = change * p_in
+                else:
+                    again[:] = 0.0
+                    for w in range(W):
+                        later = jlo + w - d[u, t + 1]
+                        for k in range(max(0, -later), min(S - 1, S - 1 - later) + 1):
+                            again[k] += prior[jlo + w] * beta[w, k]
+                    again[:] *= change
                 top = 0.0
-                for i in range(S):
-                    for j in range(V):
-                        dst = i - d[u, t] + j  # where a user at i with speed j is a step later
-                        ahead[i, j] = lik[u, t + 1, dst] * beta[dst, j] if 0 <= dst < S else 0.0
-                        top = max(top, ahead[i, j])
-                beta[:] = ahead / max(top, 1e-300)
+                for w in range(W):
+                    shift = jlo + w - d[u, t]
+                    later = jlo + w - d[u, t + 1] if t < T - 2 else 0
+                    i0, i1 = max(0, -shift), min(S - 1, S - 1 - shift)
+                    for m in range(i1 - i0 + 1):
+                        # in place: each bin read (i + shift) before it is written
+                        i = i0 + m if shift >= 0 else i1 - m
+                        k = i + shift
+                        b = 1.0
+                        if t < T - 2:  # zero where the speed leaves the window a step later still
+                            b = beta[w, k] if 0 <= k + later < S else 0.0
+                        beta[w, i] = lik[u, t + 1, k] * ((1.0 - change) * b + again[k])
+                        top = max(top, beta[w, i])
+                top = max(top, 1e-300)
+                for w in range(W):
+                    shift = jlo + w - d[u, t]
+                    for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
+                        beta[w, i] /= top
+            for i in range(S):
+                post[u, t, i] = redrawn[t, i] * p_in if t == T - 1 else 0.0
+            for w in range(W):
+                if t == T - 1:  # beta is 1 at every speed
+                    if t > 0:
+                        reach = jlo + w - d[u, t - 1]
+                        for i in range(max(0, reach), min(S - 1, reach + S - 1) + 1):
+                            post[u, t, i] += kept[t, w, i]
+                    continue
+                shift = jlo + w - d[u, t]
+                reach = jlo + w - d[u, t - 1] if t > 0 else 0
+                for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
+                    a = redrawn[t, i] * prior[jlo + w]
+                    if t > 0 and 0 <= i - reach < S:
+                        a += kept[t, w, i]
+                    post[u, t, i] += a * beta[w, i]
             tot = 0.0
             for i in range(S):
-                p = 0.0
-                for j in range(V):
-                    p += alpha[t, i, j] * beta[i, j]
-                post[u, t, i] = p
-                tot += p
+                tot += post[u, t, i]
             post[u, t] /= max(tot, 1e-300)
     return post, alive, evidence
 
@@ -420,7 +517,7 @@ def route_track(
         lik = np.exp(ll - top)
         d = np.rint(np.diff(centre, axis=1) / h).astype(np.int64)
         for m, (motion, share) in enumerate(((prior, 1 - ROUTE_OTHER), (flat, ROUTE_OTHER))):
-            post, alive, ev = _forward_backward(lik, d, motion, change)
+            post, alive, ev = batch_map(_forward_backward, 2, lik, d, motion, change)
             tracks[c : c + len(part), m] = (post[..., None] * pos).sum(2)
             # every line of a user on one scale: each step's window's top put back
             logw[c : c + len(part), m] = np.where(alive, ev + top[..., 0].sum(1) + np.log(share), -np.inf)

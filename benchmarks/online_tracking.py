@@ -13,7 +13,10 @@ Both start from the same matcher candidates of the same noisy fingerprints (seen
 Prints seconds per 1000 sequences (after a warm-up call that compiles the kernels) for the 7-step table (search included, then without it), for
 every prefix 2..7 as evaluation runs them, and for one online update per user and step; the mean
 per-trajectory RMSE of both at 7 steps (vehicle / pedestrian / all), and the error of the
-current position (the filter's last step) against the smoothed last step.
+current position (the filter's last step) against the smoothed last step. Then
+``OnlineTracker.update`` as a user runs it, with and without its drivers smoothed along their
+routes over the last steps (``Estimator.route_tracking``): time per user and step, and the
+error of the current positions.
 """
 
 from __future__ import annotations
@@ -93,6 +96,22 @@ def main() -> None:
     print(f"online update: {(t_search + t_fwd) / 7 * 1e3 / n:.3f} ms per user and step (search included)")
     print(row("offline", off7))
     print(row("online ", on7))
+    for routes in (True, False):  # the tracker's current positions, one update per step
+        est.route_tracking = routes
+        t = time.perf_counter()
+        cur = []
+        for a in range(0, n, 512):
+            tracker = est.tracker()
+            cur.append(np.stack([tracker.update(bits[a : a + 512, s]) for s in range(7)], 1))
+        t_cur = time.perf_counter() - t
+        err = np.sqrt((np.linalg.norm(np.concatenate(cur) - data.positions, axis=-1)[:, 1:] ** 2).mean(1))
+        s = summarise_by_kind(err, data.kind)
+        print(
+            f"OnlineTracker.update{'' if routes else ' without route smoothing'}: {t_cur / 7 * 1e3 / n:.3f} ms"
+            f" per user and step (search included); current positions, RMS over steps 2..7: vehicle"
+            f" {s['vehicle']['mean']:.3f} / pedestrian {s['pedestrian']['mean']:.3f} / all {s['all']['mean']:.3f} m"
+        )
+    est.route_tracking = True
     now = np.concatenate([f.positions[-1] for f in filters])
     err_now = np.linalg.norm(now - data.positions[:, -1], axis=-1).mean()
     err_last = np.linalg.norm(on7[:, -1].numpy() - data.positions[:, -1], axis=-1).mean()

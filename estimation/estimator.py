@@ -24,6 +24,7 @@ from .matching import FingerprintMatcher
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .smoothing.forecast import extrapolate, forecast_tracks
+from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
 from .smoothing.route import route_track
@@ -50,6 +51,11 @@ _WHOLE = (
 # tens of megabytes, which the allocator maps afresh for every call; 64 at a time stay in the
 # allocator's pool and the caches (prediction 1.2x to 1.6x faster, the same to float32 rounding).
 PREDICT_CHUNK = 64
+ONLINE_ROUTE_STEPS = 5
+"""Steps (the current one and those before it) over which :meth:`OnlineTracker.update` smooths
+its drivers along their routes. On the default data set's 500 first seen-area vehicles (10 steps,
+6 dB, one network) the current position's RMS error was 0.570 m filtered, 0.511 m over the last
+5 or 7 steps, 0.514 m over 10."""
 
 
 def _rows(x: Any, rows: slice) -> Any:
@@ -535,15 +541,19 @@ class Estimator(nn.Module):
         """``tracked (B, T, 2)`` metres with the users who drive along the attached street map
         smoothed along their routes (:attr:`route_tracking`), from the candidates of the
         inputs ``x``; as it is where that does not apply."""
+        return self._route_tracks(tracked, x[0], x[1][..., 0])
+
+    def _route_tracks(self, tracked: torch.Tensor, xy: Any, lp: Any) -> torch.Tensor:
+        """:meth:`_along_routes` from the steps' candidates ``xy (B, T, k, 2)`` metres and their
+        log-likelihoods ``lp (B, T, k)`` (tensors or arrays)."""
         fine = self._lane_motion()[1]
         net = self._street_network() if self.route_tracking else None
         if net is None or not len(fine.route_speeds) or tracked.shape[1] < 2:
             return tracked
-        xy, post = x[0], x[1]
         step = float(self.net.grid_step)
         track, on = route_track(
-            tracked.double().numpy(), xy.double().numpy(), post[..., 0].double().numpy(), net,
-            fine.route_speeds.numpy(), float(fine.route_change), step, float(fine.place_speed) * step,
+            tracked.double().numpy(), torch.as_tensor(xy).double().numpy(), torch.as_tensor(lp).double().numpy(),
+            net, fine.route_speeds.numpy(), float(fine.route_change), step, float(fine.place_speed) * step,
         )  # fmt: skip
         out = tracked.clone()
         out[torch.from_numpy(on)] = torch.from_numpy(track[on]).to(out.dtype)
@@ -624,7 +634,11 @@ class OnlineTracker:
 
     For a grid-reading network (``tn-match``) each :meth:`update` runs the matcher on the new
     fingerprints and one step of the candidate filter, so it costs the same at every step; for
-    the others, which read whole sequences, it runs the network on the sequence so far.
+    the others, which read whole sequences, it runs the network on the sequence so far. Where
+    the network smooths its drivers along the attached street map's routes
+    (:attr:`Estimator.route_tracking`), a driver's current position is the route pass's over the
+    filter's estimates and candidates of the last :data:`ONLINE_ROUTE_STEPS` steps: a window of
+    the same size at every step.
     """
 
     def __init__(self, estimator: Estimator):
@@ -644,7 +658,8 @@ class OnlineTracker:
 
     def update(self, bits: torch.Tensor) -> np.ndarray:
         """Add one fingerprint per user, ``bits (B, M, N_s)``; returns their current positions
-        ``(B, 2)`` float64 metres (the filtered estimate: the last step given the steps so far)."""
+        ``(B, 2)`` float64 metres (the filtered estimate: the last step given the steps so far;
+        for drivers along the attached street map, the route pass's over the last steps)."""
         bits = torch.as_tensor(bits)
         if bits.ndim != 3 or tuple(bits.shape[1:]) != (self.est.n_beams, self.est.n_bins):
             raise EstimationError(
@@ -657,7 +672,14 @@ class OnlineTracker:
         if self.filter is None:
             return self.est.predict(torch.stack(self._bits, 1).float())[:, -1].double().numpy()
         xy, score, self._refs = self.est._search(bits[:, None].float(), self._refs)
-        return self.filter.update(xy[:, 0], score[:, 0])
+        now = self.filter.update(xy[:, 0], score[:, 0])
+        f, T = self.filter, self.steps
+        if T < 2 or not self.est.route_tracking:
+            return now
+        lo = max(0, T - ONLINE_ROUTE_STEPS)
+        window = torch.from_numpy(np.stack(f.positions[lo:], 1))
+        lp = np.maximum(f.cells.likelihoods(T)[:, lo:], LOGP_FLOOR)  # as the smoothed features are
+        return self.est._route_tracks(window, f.cells.points(T)[:, lo:], lp)[:, -1].double().numpy()
 
     def track(self) -> torch.Tensor:
         """The network's estimate ``(B, T, 2)`` metres of every step so far (the smoothed track;

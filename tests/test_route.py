@@ -96,12 +96,15 @@ def test_drivers_at_speeds_of_their_own_are_followed(step):
     assert np.linalg.norm(track - true, axis=-1).mean() < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
 
 
-def test_the_pass_is_the_exact_posterior_over_arc_and_speed():
-    # every path of a 5-bin window, 3 speeds and 3 steps enumerated: a path advances by its
-    # speed, which it keeps or draws again; the pass's posterior and evidence are the sums
+@pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6])])
+def test_the_pass_is_the_exact_posterior_over_arc_and_speed(S, V, d):
+    # every path of an S-bin window, V speeds and len(d) + 1 steps enumerated: a path advances by
+    # its speed, which it keeps or draws again; the pass's posterior and evidence are the sums.
+    # With windows that shift little (or much) against the speeds, some speeds can keep a user
+    # within the windows at no step: the pass sums those in closed form.
     rng = np.random.default_rng(3)
-    S, V, T, change = 5, 3, 3, 0.3
-    lik, prior, d = rng.random((1, T, S)), np.array([0.2, 0.5, 0.3]), np.array([[1, 0]])
+    T, change = len(d) + 1, 0.3
+    lik, prior, d = rng.random((1, T, S)), rng.dirichlet(np.ones(V)), np.array([d])
     post = np.zeros((T, S))
     for i0 in range(S):
         for js in itertools.product(range(V), repeat=T):
@@ -117,7 +120,7 @@ def test_the_pass_is_the_exact_posterior_over_arc_and_speed():
     np.testing.assert_allclose(got[0], post / post.sum(1, keepdims=True), rtol=1e-12)
     np.testing.assert_allclose(np.exp(evidence[0]), post[0].sum(), rtol=1e-12)
     # a window the track cannot reach from the last: no way through
-    assert not route._forward_backward(lik, np.array([[-9, 0]]), prior, change)[1][0]
+    assert not route._forward_backward(lik, np.full((1, T - 1), -9), prior, change)[1][0]
 
 
 def test_users_off_the_streets_or_slow_are_left_alone():
@@ -275,3 +278,48 @@ def test_estimator_smooths_its_drivers_along_the_attached_map():
     est.route_tracking = True
     est.street_lanes = False  # no map, no routes
     assert est._along_routes(tracked, x) is tracked
+
+
+def test_online_tracker_puts_its_drivers_on_their_routes(monkeypatch):
+    from estimation import estimator as estimator_module
+    from estimation.noise import noisy_bits
+
+    tr = toy_sequence_set(128, 5, seed=1)
+    cfg = TrainConfig(model="tn-match", options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, tr.n_beams, tr.n_bins, tr.normaliser())
+    est.net.fit_motion(tr.positions, tr.grid_xy, tr.index)
+    est.net.motion_fine.route_speeds = torch.from_numpy(_speeds(5.5))
+    est.attach(dataclasses.replace(tr, streets=np.array([[[0.0, 20.0], [31.0, 20.0]]])), sigma=6.0)
+    # 64 drivers along the street at 5.5 m per step, one more step than the online window
+    T = estimator_module.ONLINE_ROUTE_STEPS + 1
+    x = np.linspace(0.2, 3.7, 64)[:, None] + 5.5 * np.arange(T)
+    true = np.stack([x, np.full_like(x, 20.0)], -1)
+    lo = tr.grid_xy.min(0)
+    ij = np.rint(true - lo).astype(np.int64)
+    drivers = dataclasses.replace(
+        tr,
+        index=ij[..., 0] + 32 * ij[..., 1],
+        positions=true.astype(np.float32),
+        kind=np.full(64, 3, np.int8),
+    )
+    bits = noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4))
+    windows = []
+    route_tracks = est._route_tracks
+
+    def spy(tracked, xy, lp):
+        windows.append(tracked.shape[1])
+        return route_tracks(tracked, xy, lp)
+
+    monkeypatch.setattr(est, "_route_tracks", spy)
+    now = {}
+    for routes in (True, False):
+        est.route_tracking = routes
+        tracker = est.tracker()
+        now[routes] = np.stack([tracker.update(bits[:, t]) for t in range(T)], 1)
+    # a window of the last steps at every update: the same cost at every step
+    assert windows == [*range(2, T), T - 1]
+    # the filter's own estimates stay as they were: the windows are made of them
+    assert np.array_equal(np.stack(tracker.filter.positions, 1), now[False])
+    err = {k: np.linalg.norm(v[:, 1:] - true[:, 1:], axis=-1).mean() for k, v in now.items()}
+    assert err[True] < 0.85 * err[False]
+    assert np.array_equal(now[True][:, 0], now[False][:, 0])

@@ -552,8 +552,8 @@ class Estimator(nn.Module):
             return tracked
         step = float(self.net.grid_step)
         track, on = route_track(
-            tracked.double().numpy(), torch.as_tensor(xy).double().numpy(), torch.as_tensor(lp).double().numpy(),
-            net, fine.route_speeds.numpy(), float(fine.route_change), step, float(fine.place_speed) * step,
+            tracked.double().numpy(), np.asarray(xy, np.float64), np.asarray(lp, np.float64), net,
+            fine.route_speeds.numpy(), float(fine.route_change), step, float(fine.place_speed) * step,
         )  # fmt: skip
         out = tracked.clone()
         out[torch.from_numpy(on)] = torch.from_numpy(track[on]).to(out.dtype)

@@ -311,15 +311,15 @@ def test_online_tracker_puts_its_drivers_on_their_routes(monkeypatch):
         return route_tracks(tracked, xy, lp)
 
     monkeypatch.setattr(est, "_route_tracks", spy)
-    now = {}
+    now, trackers = {}, {}
     for routes in (True, False):
         est.route_tracking = routes
-        tracker = est.tracker()
+        trackers[routes] = tracker = est.tracker()
         now[routes] = np.stack([tracker.update(bits[:, t]) for t in range(T)], 1)
     # a window of the last steps at every update: the same cost at every step
     assert windows == [*range(2, T), T - 1]
-    # the filter's own estimates stay as they were: the windows are made of them
-    assert np.array_equal(np.stack(tracker.filter.positions, 1), now[False])
+    # the routed tracker's filter keeps its own estimates (the windows are made of them)
+    assert np.array_equal(np.stack(trackers[True].filter.positions, 1), now[False])
     err = {k: np.linalg.norm(v[:, 1:] - true[:, 1:], axis=-1).mean() for k, v in now.items()}
     assert err[True] < 0.85 * err[False]
     assert np.array_equal(now[True][:, 0], now[False][:, 0])

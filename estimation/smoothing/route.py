@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from mmwsim._threads import batch_map
+from mmwsim.trajectories import segment_feet
 
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
@@ -220,36 +221,32 @@ def _offset(route: np.ndarray, left: float) -> np.ndarray:
     return np.vstack([route[0] + left * n[0], inner, route[-1] + left * n[-1]])
 
 
-@numba.njit(cache=True, nogil=True)
-def _arc_of(
-    route: np.ndarray, x: np.ndarray, step: float
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+def _arc_of(route: np.ndarray, x: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Arc length along ``route (R, 2)`` of each ``x (T, 2)`` of a track, and the signed distance
     of ``x`` to the left of the route there.
 
     Each position is put on its nearest piece of the route, or one as near within :data:`_NEAR`:
     where the route turns back at a dead end, both legs are as near, and the piece that keeps the
     arc length growing by about the track's typical ``step`` (metres) is taken (a Viterbi pass
-    over the pieces; ties go to the first piece). Compiled: it runs once per line weighed.
+    over the pieces, :func:`_pieces`).
     """
-    T, P = x.shape[0], route.shape[0] - 1
-    start, length = np.zeros(P), np.empty(P)
-    for p in range(P):
-        length[p] = np.hypot(route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1])
-        if p:
-            start[p] = start[p - 1] + length[p - 1]
-    arc, dist = np.empty((T, P)), np.empty((T, P))
-    for k in range(T):
-        for p in range(P):
-            ab0, ab1 = route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1]
-            w0, w1 = x[k, 0] - route[p, 0], x[k, 1] - route[p, 1]
-            share = min(max((w0 * ab0 + w1 * ab1) / max(ab0 * ab0 + ab1 * ab1, 1e-18), 0.0), 1.0)
-            arc[k, p] = start[p] + share * length[p]
-            dist[k, p] = np.hypot(w0 - share * ab0, w1 - share * ab1)
-        near = dist[k].min() + _NEAR
-        for p in range(P):
-            if dist[k, p] > near:  # only the pieces it lies on
-                dist[k, p] = np.inf
+    a, ab = route[:-1], np.diff(route, axis=0)
+    length = np.linalg.norm(ab, axis=1)
+    t, d = segment_feet(x, a, ab)  # (T, pieces)
+    arc = np.r_[0.0, np.cumsum(length)][:-1] + t * length
+    d = np.where(d <= d.min(1, keepdims=True) + _NEAR, d, np.inf)  # only the pieces it lies on
+    i = _pieces(arc, d, float(step))
+    rows = np.arange(len(x))
+    w, u = x - a[i], ab[i] / np.maximum(length[i], 1e-12)[:, None]
+    return arc[rows, i], u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+
+
+@numba.njit(cache=True, nogil=True)
+def _pieces(arc: np.ndarray, dist: np.ndarray, step: float) -> np.ndarray:  # pragma: no cover - compiled
+    """The piece ``(T,)`` each step of :func:`_arc_of` goes on, from the arc lengths ``(T, P)``
+    of its feet on every piece and its distances ``(T, P)`` to them (inf: not on that piece).
+    Compiled, as it runs once per line weighed; ties go to the first piece."""
+    T, P = arc.shape
     cost, nxt = dist[0].copy(), np.empty(P)
     came = np.zeros((T, P), dtype=np.int64)
     for k in range(1, T):
@@ -266,14 +263,7 @@ def _arc_of(
     piece[T - 1] = np.argmin(cost)
     for k in range(T - 1, 0, -1):
         piece[k - 1] = came[k, piece[k]]
-    out, side = np.empty(T), np.empty(T)
-    for k in range(T):
-        p = piece[k]
-        u0, u1 = route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1]
-        norm = max(length[p], 1e-12)
-        out[k] = arc[k, p]
-        side[k] = (u0 * (x[k, 1] - route[p, 1]) - u1 * (x[k, 0] - route[p, 0])) / norm
-    return out, side
+    return piece
 
 
 def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: float) -> np.ndarray:
@@ -339,6 +329,7 @@ def _forward_backward(
     beta = np.empty((V, S))
     arrived = np.empty(S)
     again = np.empty(S)
+    p_all = prior.sum()
     for u in range(n):
         lo_d, hi_d = d[u, 0], d[u, 0]
         for t in range(1, T - 1):
@@ -348,9 +339,6 @@ def _forward_backward(
         p_in = 0.0
         for w in range(W):
             p_in += prior[jlo + w]
-        p_all = 0.0
-        for j in range(V):
-            p_all += prior[j]
         tot = 0.0
         for i in range(S):
             redrawn[0, i] = lik[u, 0, i]  # the first step's speed is drawn from the prior
@@ -415,22 +403,22 @@ def _forward_backward(
                     shift = jlo + w - d[u, t]
                     for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
                         beta[w, i] /= top
-            for i in range(S):
-                post[u, t, i] = redrawn[t, i] * p_in if t == T - 1 else 0.0
-            for w in range(W):
-                if t == T - 1:  # beta is 1 at every speed
-                    if t > 0:
-                        reach = jlo + w - d[u, t - 1]
-                        for i in range(max(0, reach), min(S - 1, reach + S - 1) + 1):
-                            post[u, t, i] += kept[t, w, i]
-                    continue
-                shift = jlo + w - d[u, t]
-                reach = jlo + w - d[u, t - 1] if t > 0 else 0
-                for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
-                    a = redrawn[t, i] * prior[jlo + w]
-                    if t > 0 and 0 <= i - reach < S:
-                        a += kept[t, w, i]
-                    post[u, t, i] += a * beta[w, i]
+            if t == T - 1:  # beta is 1 at every speed
+                for i in range(S):
+                    post[u, t, i] = redrawn[t, i] * p_in
+                for w in range(W):
+                    reach = jlo + w - d[u, t - 1]
+                    for i in range(max(0, reach), min(S - 1, reach + S - 1) + 1):
+                        post[u, t, i] += kept[t, w, i]
+            else:
+                for w in range(W):
+                    shift = jlo + w - d[u, t]
+                    reach = jlo + w - d[u, t - 1] if t > 0 else 0
+                    for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
+                        a = redrawn[t, i] * prior[jlo + w]
+                        if t > 0 and 0 <= i - reach < S:
+                            a += kept[t, w, i]
+                        post[u, t, i] += a * beta[w, i]
             tot = 0.0
             for i in range(S):
                 tot += post[u, t, i]

@@ -16,7 +16,8 @@ per-trajectory RMSE of both at 7 steps (vehicle / pedestrian / all), and the err
 current position (the filter's last step) against the smoothed last step. Then
 ``OnlineTracker.update`` as a user runs it, with and without its drivers smoothed along their
 routes over the last steps (``Estimator.route_tracking``): time per user and step, and the
-error of the current positions.
+error of the current positions; and the latency of one update where each tracker holds one
+user, as a device tracking itself would run it.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import time
 import numpy as np
 import torch
 from _common import run_dataset_parser, test_draws
+
+LATENCY_USERS = 50
 
 
 def main() -> None:
@@ -110,6 +113,23 @@ def main() -> None:
             f"OnlineTracker.update{'' if routes else ' without route smoothing'}: {t_cur / 7 * 1e3 / n:.3f} ms"
             f" per user and step (search included); current positions, RMS over steps 2..7: vehicle"
             f" {s['vehicle']['mean']:.3f} / pedestrian {s['pedestrian']['mean']:.3f} / all {s['all']['mean']:.3f} m"
+        )
+    for routes in (True, False):  # one user per tracker, as a device tracking itself runs it
+        est.route_tracking = routes
+        lat, made = [], []
+        for u in range(min(n, LATENCY_USERS)):
+            t = time.perf_counter()
+            tracker = est.tracker()
+            made.append(time.perf_counter() - t)
+            for s in range(7):
+                t = time.perf_counter()
+                tracker.update(bits[u : u + 1, s])
+                lat.append(time.perf_counter() - t)
+        lat_ms = np.array(lat) * 1e3
+        print(
+            f"one user per tracker{'' if routes else ' without route smoothing'}: update median"
+            f" {np.median(lat_ms):.1f} ms, 95th percentile {np.percentile(lat_ms, 95):.1f} ms"
+            f" ({min(n, LATENCY_USERS)} users x 7 steps); a new tracker {np.median(made) * 1e3:.1f} ms"
         )
     est.route_tracking = True
     now = np.concatenate([f.positions[-1] for f in filters])

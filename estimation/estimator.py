@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -28,6 +27,7 @@ from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
 from .smoothing.route import route_track
+from .stamps import same_stamp, stamp
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -256,10 +256,10 @@ class Estimator(nn.Module):
         self.street_forecast = True
         self.route_tracking = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
-        self._broadened: tuple[bytes, tuple] | None = None  # (tables' digest, their broadened copies)
-        self._steady: tuple[bytes, tuple | None] | None = None  # (digest, _steady_motion's tables)
-        self._lanes: tuple[bytes, tuple] | None = None  # (tables' and map's digest, lane copies)
-        self._street_net: tuple[bytes, StreetNetwork | None] | None = None  # (map's digest, graph)
+        self._broadened: tuple[tuple, tuple] | None = None  # (tables' stamp, their broadened copies)
+        self._steady: tuple[tuple, tuple | None] | None = None  # (stamp, _steady_motion's tables)
+        self._lanes: tuple[tuple, tuple] | None = None  # (tables' and map's stamp, lane copies)
+        self._street_net: tuple[tuple, StreetNetwork | None] | None = None  # (map's stamp, graph)
         self.net = build_network(
             config.model,
             n_beams,
@@ -311,7 +311,7 @@ class Estimator(nn.Module):
 
             table = GridTable(data)
             pdp, xy, threshold, streets = table.pdp, table.xy, dataset_threshold(data), table.streets
-        self._streets = None if streets is None else (np.asarray(streets, dtype=np.float64), xy)
+        self._streets = None if streets is None else (_frozen(streets), _frozen(xy))
         sigma = self.config.sigma if sigma is None else float(sigma)
         if self.matcher is None or self.matcher.grid_pdp is not pdp or self.matcher.sigma != sigma:
             if pdp.shape[1:] != (self.n_beams, self.n_bins):
@@ -373,22 +373,11 @@ class Estimator(nn.Module):
             memory=net.memory, memory_skips=steady,
         )  # fmt: skip
 
-    def _tables_digest(self, *extra: np.ndarray) -> bytes:
-        """Digest of the motion tables (and ``extra`` arrays): the key of the copies made of them."""
+    def _tables_stamp(self, *extra: Any) -> tuple:
+        """Key of the motion tables (and of ``extra``, read-only arrays or values) that the copies
+        made of them are kept under (:func:`~estimation.stamps.stamp`)."""
         net = self.net
-        digest = hashlib.sha1(str(float(net.grid_step)).encode())
-        for table in (net.motion, net.motion_fine, net.motion_scaled):
-            for t in (
-                table.fitted,
-                table.speed_edges,
-                table.headings,
-                table.log_step_table,
-                table.log_accel_table,
-            ):
-                digest.update(t.numpy().tobytes())
-        for t in extra:
-            digest.update(np.ascontiguousarray(t).tobytes())
-        return digest.digest()
+        return stamp(net.grid_step, net.motion, net.motion_fine, net.motion_scaled, *extra)
 
     def _lane_motion(self) -> tuple[MotionTable, MotionTable]:
         """The motion tables the filter uses: the network's, with the attached data's street map
@@ -398,8 +387,8 @@ class Estimator(nn.Module):
         streets = self._map_lanes()
         if streets is None:
             return net.motion, net.motion_fine
-        key = self._tables_digest(*streets)
-        if self._lanes is None or self._lanes[0] != key:
+        key = self._tables_stamp(*streets)
+        if self._lanes is None or not same_stamp(self._lanes[0], key):
             self._lanes = (key, net.lane_tables(*streets))
         return self._lanes[1]
 
@@ -444,8 +433,8 @@ class Estimator(nn.Module):
         table too, and have none where either has nothing to pool. Made again only when the
         tables or the map change."""
         net, streets = self.net, self._map_lanes()
-        key = self._tables_digest(net.motion.band_count.numpy(), *(streets or ()))
-        if self._steady is None or self._steady[0] != key:
+        key = self._tables_stamp(*(streets or ()))
+        if self._steady is None or not same_stamp(self._steady[0], key):
             cell = net.motion.speed_pooled(POOLED_SPEED)
             if self._scaled_fine():
                 tables = (net.motion if cell is None else cell, net.motion_scaled)
@@ -461,8 +450,8 @@ class Estimator(nn.Module):
         """The motion tables' broadened copies, made again only when the tables change (a
         filter is made per batch in training and evaluation)."""
         net = self.net
-        key = self._tables_digest()
-        if self._broadened is None or self._broadened[0] != key:
+        key = self._tables_stamp()
+        if self._broadened is None or not same_stamp(self._broadened[0], key):
             step = float(net.grid_step)
             fine = net.motion_fine.broadened(unit=step) if bool(net.motion_fine.fitted) else None
             self._broadened = (key, (net.motion.broadened(), fine))
@@ -579,8 +568,8 @@ class Estimator(nn.Module):
         streets = self._map_lanes()
         if streets is None:
             return None
-        key = hashlib.sha1(np.ascontiguousarray(streets[0]).tobytes()).digest()
-        if self._street_net is None or self._street_net[0] != key:
+        key = stamp(streets[0])
+        if self._street_net is None or not same_stamp(self._street_net[0], key):
             try:
                 graph: StreetNetwork | None = StreetNetwork.from_segments(streets[0])
             except TrajectoryError:  # no piece left to drive along
@@ -627,6 +616,15 @@ class Estimator(nn.Module):
             path, MODEL_FORMAT, ("config", "n_beams", "n_bins", "normaliser", "state_dict")
         )
         return cls.from_state(state, str(path))
+
+
+def _frozen(a: Any) -> np.ndarray:
+    """A read-only float64 copy of ``a``: what the estimator keeps of the data it is attached
+    to, so that a caller changing its own array in place cannot leave copies made from it
+    stale (:func:`~estimation.stamps.stamp`)."""
+    out = np.array(a, dtype=np.float64)
+    out.flags.writeable = False
+    return out
 
 
 class OnlineTracker:

@@ -307,6 +307,13 @@ def test_an_attached_street_map_gives_lanes_where_no_training_user_drove():
     est.attach(dataclasses.replace(tr, streets=street))
     cells, fine = est._lane_motion()
     assert est._lane_motion()[0] is cells  # made once per map and set of tables
+    street[0, 0, 1] = 0.0  # the caller's array changed in place: the estimator kept its own copy
+    assert est._lane_motion()[0] is cells
+    street[0, 0, 1] = 20.0
+    net.motion.log_accel_table[0, 0, 0] += 1.0  # a table changed in place: its lanes made again
+    assert est._lane_motion()[0] is not cells
+    net.motion.log_accel_table[0, 0, 0] -= 1.0
+    cells, fine = est._lane_motion()
     fast = torch.tensor([6.0, 0.0])
     on, off = cells.log_place_ratio(fast, torch.tensor([[12.0, 20.0], [12.0, 5.0]]))
     assert float(on) > 1.0 and float(off) == pytest.approx(math.log(3 / 4), abs=2e-3)

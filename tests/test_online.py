@@ -139,6 +139,7 @@ def test_a_forward_step_keeps_the_pairs_and_messages_a_log_domain_step_keeps(mot
         m.reach,
         m.place,
         m.accel_prob,
+        m.accel_max,
     )
     for b, (rpi, rci, rla) in enumerate(_forward_reference(*args, M, motion)):
         n = len(rla)

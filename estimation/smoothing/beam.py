@@ -26,6 +26,7 @@ import numpy as np
 
 from mmwsim._jit import njit
 
+from ..stamps import same_stamp, stamp
 from .motion import MixtureMotion, MotionTable
 
 __all__ = [
@@ -59,6 +60,10 @@ class MotionArrays(NamedTuple):
     accel_prob: np.ndarray  # exp(accel_table), float32 to halve the cache it takes: the kernels multiply
     headings: int  # 0: the motion's frame; n: the lattice frame with n heading bins per quadrant
     heading_slopes: np.ndarray  # (max(headings - 1, 0),) inner heading bin edges, slopes v_y / v_x
+    # the largest and smallest of accel_table: the kernels' pruning bounds, kept with the table
+    # as the kernels run per slice of a batch and a sub-cell table's maximum alone takes 2-4 ms
+    accel_max: float
+    accel_min: float
 
 
 def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
@@ -70,28 +75,17 @@ def motion_arrays(motion: MotionTable | MixtureMotion) -> MotionArrays:
     costs more than a batch's forward step."""
     if isinstance(motion, MixtureMotion):
         return _arrays(_tabulate(motion))
-    stamp = (float(motion.bin), float(motion.reach), *((b, b._version) for b in motion.buffers()))
+    key = stamp(float(motion.bin), float(motion.reach), motion)
     kept = _KEPT.get(motion)
-    if (
-        kept is not None
-        and len(kept[0]) == len(stamp)
-        and all(_same(a, b) for a, b in zip(kept[0], stamp, strict=True))
-    ):
+    if kept is not None and same_stamp(kept[0], key):
         return kept[1]
     arrays = _arrays(motion)
-    _KEPT[motion] = (stamp, arrays)
+    _KEPT[motion] = (key, arrays)
     return arrays
 
 
-# table -> (stamp, arrays): the stamp holds the buffers themselves, so that a replaced buffer
-# is told apart by identity (its id cannot be reused while the stamp holds it)
+# table -> (stamp, arrays)
 _KEPT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _same(a, b) -> bool:
-    if isinstance(a, tuple):
-        return a[0] is b[0] and a[1] == b[1]
-    return a == b
 
 
 def _arrays(motion: MotionTable) -> MotionArrays:
@@ -112,6 +106,8 @@ def _arrays(motion: MotionTable) -> MotionArrays:
         np.exp(accel).astype(np.float32),
         int(motion.headings),
         motion.heading_slopes,
+        float(accel.max()),
+        float(accel.min()),
     )
 
 
@@ -351,7 +347,23 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
 
 @njit(cache=True, nogil=True)
 def pair_forward(
-    xpp, xp, xc, pi, ci, la, lp, M, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
+    xpp,
+    xp,
+    xc,
+    pi,
+    ci,
+    la,
+    lp,
+    M,
+    speed_edges,
+    headings,
+    slopes,
+    accel_table,
+    bin_,
+    reach,
+    place,
+    accel_prob,
+    a_max,
 ):
     """One forward step of the beam: pairs ``(x_t-2, x_t-1)`` to pairs ``(x_t-1, x_t)``.
 
@@ -363,6 +375,7 @@ def pair_forward(
     M : int, beam width
     speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
         acceleration and place tables (:class:`MotionArrays`)
+    a_max : float, the largest entry of ``accel_table`` (``MotionArrays.accel_max``)
 
     Returns
     -------
@@ -379,7 +392,6 @@ def pair_forward(
     idx = np.empty(K, np.int64)
     weight = np.empty((2, K))
     flat_prob = accel_prob.reshape(accel_prob.shape[0], -1)
-    a_max = accel_table.max()
     speed2 = place[0] * place[0]
     for b in range(B):
         for i in range(Kp):
@@ -556,7 +568,21 @@ def _prepare_step(b, t, work, start, base, row, val):
 
 @njit(cache=True, nogil=True)
 def beam_smooth(
-    xy, lp, pi, ci, la, lengths, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob
+    xy,
+    lp,
+    pi,
+    ci,
+    la,
+    lengths,
+    speed_edges,
+    headings,
+    slopes,
+    accel_table,
+    bin_,
+    reach,
+    place,
+    accel_prob,
+    a_span,
 ):
     """Smoothed log marginals of the first ``L`` steps given those ``L`` steps, for every ``L`` in
     ``lengths``, from a beam's stored forward messages: one backward pass over the kept pairs per
@@ -572,6 +598,7 @@ def beam_smooth(
     lengths : (n,) int64, each in 2..T
     speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
         tables (:class:`MotionArrays`)
+    a_span : float, the largest less the smallest entry of ``accel_table``
 
     Returns
     -------
@@ -588,7 +615,7 @@ def beam_smooth(
     tables = (speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob)
     # a term whose rest lies this far below its group's largest stays _NEGLIGIBLE below the sum
     # whatever the accelerations
-    floor = _NEGLIGIBLE - (accel_table.max() - accel_table.min())
+    floor = _NEGLIGIBLE - a_span
     out = np.empty((B, lengths.sum(), K))
     beta = np.empty(M)
     prev = np.empty(M)

@@ -131,6 +131,7 @@ class _Beam:
             *pairs, marg = batch_map(
                 pair_forward, 7, self.xy.step(-2), self.xy.step(-1), xy, *(p.step(-1) for p in self._pairs), lp,
                 self.beam, m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+                m.accel_max,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
@@ -175,7 +176,7 @@ class _Beam:
             rows = batch_map(
                 beam_smooth, 5, self.points(T_max), self.likelihoods(T_max), pi, ci, la,
                 np.array(longer, np.int64), m.speed_edges, m.headings, m.heading_slopes, m.accel_table,
-                m.bin, m.reach, m.place, m.accel_prob,
+                m.bin, m.reach, m.place, m.accel_prob, m.accel_max - m.accel_min,
             )  # fmt: skip
             ends = np.cumsum(longer)
             parts = iter(np.split(rows, ends[:-1], axis=1))

@@ -13,7 +13,7 @@ import torch
 
 from estimation.smoothing.forecast import STREET_REACH, carry, extrapolate, follow_streets, forecast_tracks
 from estimation.smoothing.motion import MotionTable, snap_to_lattice
-from mmwsim.trajectories import StreetNetwork, TrajectoryError
+from mmwsim.trajectories import StreetNetwork, TrajectoryError, streets
 
 SPEED = 6.0  # grid units per step: above the place tables' speed (5)
 
@@ -119,7 +119,7 @@ CROSS = np.array(
 )
 
 
-def test_street_segments_make_the_network_they_came_from():
+def test_street_segments_make_the_network_they_came_from(monkeypatch):
     net = StreetNetwork.from_segments(CROSS)
     assert len(net.nodes) == 5 and len(net.edges) == 4
     assert sorted(net.degree.tolist()) == [1, 1, 1, 1, 4]
@@ -133,6 +133,16 @@ def test_street_segments_make_the_network_they_came_from():
     assert np.array_equal(net.onward(np.array([west]), np.array([centre]), np.array([0.7])), [centre])
     again = StreetNetwork.from_segments(net.lines())
     assert np.array_equal(again.nodes, net.nodes) and np.array_equal(again.edges, net.edges)
+    # the ways from the west end: 40 m to the crossing, 80 or 90 m on to the other ends; kept
+    length, pred = net.ways_from(west)
+    assert sorted(length) == pytest.approx([0.0, 40.0, 80.0, 90.0, 90.0]) and length[centre] == 40.0
+    assert pred[centre] == west and (pred[length > 40.0] == centre).all()
+    assert net.ways_from(west)[0] is length and not length.flags.writeable
+    near, _ = net.ways_from(west, limit=45.0)  # a limit of its own
+    assert near[centre] == 40.0 and np.isinf(near).sum() == 3
+    monkeypatch.setattr(streets, "_WAYS_KEPT_BYTES", 1)  # room for one result: the oldest goes
+    net.ways_from(centre)
+    assert net.ways_from(west)[0] is not length
     for bad, match in ((np.zeros((2, 3, 2)), "shape"), (np.full((1, 2, 2), np.inf), "NaN")):
         with pytest.raises(TrajectoryError, match=match):
             StreetNetwork.from_segments(bad)

@@ -11,6 +11,7 @@ the largest connected part is kept. Vehicles then drive along the centre lines (
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from functools import cached_property
 
 import numpy as np
@@ -24,6 +25,9 @@ __all__ = ["STREET_HALF_WIDTH", "StreetNetwork", "segment_feet"]
 
 STREET_HALF_WIDTH = 4.0  # metres of clearance a centre line keeps from the buildings, by default
 _POINTS = 4096  # points per nearest-edge search (points x edges float64 arrays)
+# Bytes of ways_from's results kept per network: a route smoother asks for the same few nodes for
+# every driver near them, and scipy's search costs 0.4 ms a call however near the limit is.
+_WAYS_KEPT_BYTES = 64 << 20
 
 
 def segment_feet(points: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,6 +77,7 @@ class StreetNetwork:
         first = np.searchsorted(both[:, 0], both[:, 0])
         nbr[both[:, 0], np.arange(len(both)) - first] = both[:, 1]
         self.neighbours = nbr
+        self._ways: OrderedDict[tuple[int, float], tuple[np.ndarray, np.ndarray]] = OrderedDict()
 
     @property
     def total_length(self) -> float:
@@ -242,7 +247,7 @@ class StreetNetwork:
         """Shortest ways along the streets from ``node`` to every node.
 
         Searched only within ``limit`` metres, so that a large city's graph costs no all-pairs
-        table.
+        table; the results of the last calls are kept (read-only arrays).
 
         Returns
         -------
@@ -251,7 +256,19 @@ class StreetNetwork:
         predecessor : (m,) int32
             The node before each on its way from ``node`` (negative where none).
         """
-        return dijkstra(self._graph, directed=False, indices=node, return_predecessors=True, limit=limit)
+        key = (int(node), float(limit))
+        found = self._ways.get(key)
+        if found is not None:
+            self._ways.move_to_end(key)
+            return found
+        length, pred = dijkstra(
+            self._graph, directed=False, indices=key[0], return_predecessors=True, limit=limit
+        )
+        length.flags.writeable = pred.flags.writeable = False  # shared by every caller
+        self._ways[key] = (length, pred)
+        while len(self._ways) > max(1, _WAYS_KEPT_BYTES // (12 * len(self.nodes))):  # least recent first
+            self._ways.popitem(last=False)
+        return length, pred
 
     def onward(self, cur: np.ndarray, prev: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The node after ``cur (n,)`` for drivers coming from ``prev (n,)``: of ``cur``'s

@@ -16,6 +16,7 @@ from torch import nn
 from mmwsim.constants import SIGMA_DB
 from mmwsim.trajectories import StreetNetwork, TrajectoryError
 
+from ._stamps import same_stamp, stamp
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
 from .data import Normaliser, SequenceSet
 from .errors import EstimationError
@@ -27,7 +28,6 @@ from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import CandidateFilter
 from .smoothing.route import route_track
-from .stamps import same_stamp, stamp
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -375,7 +375,7 @@ class Estimator(nn.Module):
 
     def _tables_stamp(self, *extra: Any) -> tuple:
         """Key of the motion tables (and of ``extra``, read-only arrays or values) that the copies
-        made of them are kept under (:func:`~estimation.stamps.stamp`)."""
+        made of them are kept under (:func:`~estimation._stamps.stamp`)."""
         net = self.net
         return stamp(net.grid_step, net.motion, net.motion_fine, net.motion_scaled, *extra)
 
@@ -621,7 +621,7 @@ class Estimator(nn.Module):
 def _frozen(a: Any) -> np.ndarray:
     """A read-only float64 copy of ``a``: what the estimator keeps of the data it is attached
     to, so that a caller changing its own array in place cannot leave copies made from it
-    stale (:func:`~estimation.stamps.stamp`)."""
+    stale (:func:`~estimation._stamps.stamp`)."""
     out = np.array(a, dtype=np.float64)
     out.flags.writeable = False
     return out

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from estimation._stamps import same_stamp, stamp
 from estimation.smoothing.beam import motion_arrays
 from estimation.smoothing.motion import MotionTable
-from estimation.stamps import same_stamp, stamp
 
 
 def test_a_stamp_changes_when_a_tensor_changes_in_place_or_is_replaced():

@@ -26,7 +26,7 @@ import numpy as np
 
 from mmwsim._jit import njit
 
-from ..stamps import same_stamp, stamp
+from .._stamps import same_stamp, stamp
 from .motion import MixtureMotion, MotionTable
 
 __all__ = [
@@ -347,24 +347,9 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
 
 @njit(cache=True, nogil=True)
 def pair_forward(
-    xpp,
-    xp,
-    xc,
-    pi,
-    ci,
-    la,
-    lp,
-    M,
-    speed_edges,
-    headings,
-    slopes,
-    accel_table,
-    bin_,
-    reach,
-    place,
-    accel_prob,
+    xpp, xp, xc, pi, ci, la, lp, M, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob,
     a_max,
-):
+):  # fmt: skip
     """One forward step of the beam: pairs ``(x_t-2, x_t-1)`` to pairs ``(x_t-1, x_t)``.
 
     Parameters
@@ -568,22 +553,9 @@ def _prepare_step(b, t, work, start, base, row, val):
 
 @njit(cache=True, nogil=True)
 def beam_smooth(
-    xy,
-    lp,
-    pi,
-    ci,
-    la,
-    lengths,
-    speed_edges,
-    headings,
-    slopes,
-    accel_table,
-    bin_,
-    reach,
-    place,
-    accel_prob,
+    xy, lp, pi, ci, la, lengths, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob,
     a_span,
-):
+):  # fmt: skip
     """Smoothed log marginals of the first ``L`` steps given those ``L`` steps, for every ``L`` in
     ``lengths``, from a beam's stored forward messages: one backward pass over the kept pairs per
     prefix. The acceleration densities between the kept pairs of consecutive steps are worked out

@@ -23,6 +23,7 @@ from .errors import EstimationError
 from .matching import FingerprintMatcher
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
+from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
@@ -507,8 +508,10 @@ class Estimator(nn.Module):
         was = self.training
         self.eval()
         try:
-            if self.uses_grid and isinstance(x, torch.Tensor):
-                x = self.inputs(x)
+            if isinstance(x, torch.Tensor):
+                x = check_bits(x, self.n_beams, self.n_bins, ndim=4)
+                if self.uses_grid:
+                    x = self.inputs(x)
             n = len(x[0]) if isinstance(x, tuple) else len(x)
             parts = [
                 self._predict_rows(_rows(x, slice(a, a + PREDICT_CHUNK)))

@@ -14,7 +14,7 @@ import weakref
 import numpy as np
 import torch
 
-from .noise import log_detection_probabilities
+from .noise import check_bits, log_detection_probabilities
 from .tile_search import TileIndex
 
 __all__ = ["FingerprintMatcher", "GUIDE"]
@@ -128,6 +128,7 @@ class FingerprintMatcher:
 
     def _ones(self, bits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """The ones of ``bits (N, M, N_s)`` as rows of the weights: ``indptr (N + 1,)``, ``ones``."""
+        bits = check_bits(bits, *self.grid_pdp.shape[1:])
         x = bits.reshape(-1, bits.shape[-2] * bits.shape[-1])[:, self.columns]
         nz = torch.nonzero(x)
         indptr = torch.searchsorted(nz[:, 0].contiguous(), torch.arange(len(x) + 1))

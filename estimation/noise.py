@@ -13,10 +13,43 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from .errors import EstimationError
+
 if TYPE_CHECKING:
     from .data import SequenceSet
 
-__all__ = ["fingerprint_bits", "log_detection_probabilities", "noisy_bits"]
+__all__ = ["check_bits", "fingerprint_bits", "log_detection_probabilities", "noisy_bits"]
+
+
+def check_bits(bits: torch.Tensor, beams: int, bins: int, ndim: int | None = None) -> torch.Tensor:
+    """``bits`` as a tensor, or an :class:`EstimationError` that names what is wrong with them.
+
+    Fingerprints from outside (a user's measurements) reach the matcher and the networks here.
+    The matcher reads every nonzero entry as a one, so a NaN, an infinite or a soft value would
+    give a position as if it were a bit, silently.
+
+    Parameters
+    ----------
+    bits : (..., M, N_s) tensor or array of 0/1 (any dtype)
+    beams, bins : int
+        ``M`` and ``N_s`` of the model or grid.
+    ndim : int, optional
+        The number of dimensions ``bits`` must have.
+    """
+    bits = torch.as_tensor(bits)
+    if (ndim is not None and bits.ndim != ndim) or bits.ndim < 2 or tuple(bits.shape[-2:]) != (beams, bins):
+        lead = "..., " if ndim is None else "".join(f"{c}, " for c in "BTS"[: ndim - 2])
+        raise EstimationError(
+            f"fingerprints must be ({lead}{beams}, {bins}) bits, got shape {tuple(bits.shape)}"
+        )
+    if bits.dtype != torch.bool:
+        bad = (bits != 0) & (bits != 1)
+        if bool(bad.any()):
+            raise EstimationError(
+                f"fingerprint bits must be 0 or 1, got {bits[bad][0].item()!r} (at {int(bad.sum())} of "
+                f"{bits.numel()} entries)"
+            )
+    return bits
 
 
 def fingerprint_bits(

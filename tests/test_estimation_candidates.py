@@ -461,6 +461,34 @@ def test_tn_match_needs_the_grid():
     assert est.attach(d).predict(torch.zeros(1, 3, 4, 8)).shape == (1, 3, 2)
 
 
+@pytest.mark.parametrize("model", ["tn-match", "lstm"])
+def test_fingerprints_that_are_not_bits_are_refused_by_name(model):
+    """Bits from outside reach the matcher and the networks: a NaN, an infinite or a soft value
+    (which the matcher would read as a one) and a wrong shape are each one clear error."""
+    d = toy_sequence_set(8, 4, nx=16, ny=16, n_beams=4, n_bins=8)
+    est = Estimator(
+        TrainConfig(model=model, options={"search": 16, "k": 4} if model == "tn-match" else {}),
+        4,
+        8,
+        d.normaliser(),
+    ).attach(d)
+    good = torch.zeros(2, 3, 4, 8)
+    good[:, :, 1, 2] = 1.0
+    assert est.predict(good).shape == (2, 3, 2) and est.predict(good.bool()).shape == (2, 3, 2)
+    for value, shown in ((float("nan"), "nan"), (float("inf"), "inf"), (0.5, "0.5"), (-1.0, "-1.0")):
+        bad = good.clone()
+        bad[1, 2, 3, 4] = value
+        with pytest.raises(EstimationError, match=f"0 or 1, got {shown} \\(at 1 of 192 entries\\)"):
+            est.predict(bad)
+        with pytest.raises(EstimationError, match="0 or 1"):
+            est.tracker().update(bad[:, 2])
+    with pytest.raises(EstimationError, match=r"\(B, T, 4, 8\) bits, got shape \(2, 3, 8, 4\)"):
+        est.predict(good.transpose(-1, -2))
+    if est.uses_grid:  # the classical trackers read the same matcher
+        with pytest.raises(EstimationError, match="0 or 1"):
+            MatchSmoother(d, 6.0, search=16, k=4).predict(torch.full((1, 3, 4, 8), float("nan")))
+
+
 def test_constant_velocity_forecast_is_exact():
     g = torch.Generator().manual_seed(0)
     start, v = torch.rand(5, 1, 2, generator=g) * 100, torch.randn(5, 1, 2, generator=g) * 4

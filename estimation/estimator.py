@@ -503,13 +503,13 @@ class Estimator(nn.Module):
 
     @torch.no_grad()
     def predict(self, x: Any) -> torch.Tensor:
-        """``bits (B, T, M, N_s)`` (or their :meth:`inputs`) -> positions ``(B, T_out, 2)`` float32,
-        metres."""
+        """``bits (B, T, M, N_s)`` of 0/1, a tensor or array of any dtype (or their :meth:`inputs`)
+        -> positions ``(B, T_out, 2)`` float32, metres."""
         was = self.training
         self.eval()
         try:
-            if isinstance(x, torch.Tensor):
-                x = check_bits(x, self.n_beams, self.n_bins, ndim=4)
+            if isinstance(x, (torch.Tensor, np.ndarray)):
+                x = check_bits(x, self.n_beams, self.n_bins, ndim=4).float()
                 if self.uses_grid:
                     x = self.inputs(x)
             n = len(x[0]) if isinstance(x, tuple) else len(x)

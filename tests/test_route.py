@@ -133,6 +133,19 @@ def test_users_off_the_streets_or_slow_are_left_alone():
         assert not on.any() and np.array_equal(track, cells)
 
 
+def test_a_driver_whose_first_tracked_step_strays_off_the_street_is_smoothed_back_onto_it():
+    """The smoother's first step (one fingerprint, no step before it) can stray 3 to 4 m off the
+    street while the others are on it: the route still holds the driver (ROUTE_REACH)."""
+    net = StreetNetwork.from_segments(L_STREETS)
+    true = _drive(np.array([20.0]), 8.3)
+    xy, lp, cells = _candidates(true)
+    tracked = cells.copy()
+    tracked[0, 0, 1] += 3.6  # 3.6 m north of the street
+    track, on = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert on.all()
+    assert np.linalg.norm(track - true, axis=-1).max() < 0.5  # the stray step 3.6 m off before
+
+
 @pytest.mark.parametrize("left", [1.3, -1.7])
 def test_drivers_in_a_lane_beside_the_centre_line_are_smoothed_along_it(left):
     # a lane ``left`` metres left of the L's centre line (right where negative), round its corner

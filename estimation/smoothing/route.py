@@ -92,12 +92,9 @@ def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[
         if (track[-1] - track[0]) @ (net.nodes[b] - net.nodes[a]) < 0:
             a, b = b, a
         return [a, b]
-    found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def ways(node: int) -> tuple[np.ndarray, np.ndarray]:
-        if node not in found:
-            found[node] = net.ways_from(node, ROUTE_DETOUR)
-        return found[node]
+        return net.ways_from(node, ROUTE_DETOUR)  # the network keeps its last results
 
     if ways(a)[0][E[seq[1]]].min() < ways(b)[0][E[seq[1]]].min():  # leave by the end nearer the next
         a, b = b, a

@@ -132,6 +132,29 @@ def _lattice_filter(memory, **kw):
     return CandidateFilter(MOTION, lattice, 1.0, k=8, beam=30, fine_k=3, fine_beam=60, memory=memory, **kw)
 
 
+def test_paths_drawn_with_the_backward_passes_are_the_ones_drawn_alone():
+    # smooth_and_sample draws the memory's paths in the same kernel as the prefixes' backward
+    # passes, from the densities worked out once for both: the same paths as sample_paths,
+    # and the same marginals as smooth
+    xy, score = _candidates(B=6, T=7, S=12)
+    f = _lattice_filter(None).run(torch.round(xy), score)
+    fine = f._models[0].fine
+    lengths = [2, 4, 7, 5, 1]
+    draw = np.zeros((6, 5), bool)
+    draw[[0, 3, 5], 1] = draw[:, 2] = draw[1, 3] = True
+    marg, paths = fine.smooth_and_sample(lengths, draw, 32, seed=4)
+    for got, want in zip(marg, fine.smooth(lengths), strict=True):
+        assert np.array_equal(got, want)
+    assert paths[0].shape == (0, 32, 2) and paths[4] is None
+    for i in (1, 2, 3):
+        rows = np.flatnonzero(draw[:, i])
+        assert np.array_equal(paths[i], fine.sample(lengths[i], 32, rows, seed=4))
+    # one prefix with paths keeps the densities for the draws: the same marginals as without
+    marg, paths = fine.smooth_and_sample([6], np.ones((6, 1), bool), 8)
+    assert np.array_equal(marg[0], fine.smooth([6])[0])
+    assert np.array_equal(paths[0], fine.sample(6, 8))
+
+
 def test_the_filter_moves_its_sub_cell_tracks_by_the_memory_and_only_by_it():
     xy, score = _candidates(B=6, T=7, S=12)
     xy = torch.round(xy)

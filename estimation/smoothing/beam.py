@@ -553,13 +553,14 @@ def _prepare_step(b, t, work, start, base, row, val):
 
 @njit(cache=True, nogil=True)
 def beam_smooth(
-    xy, lp, pi, ci, la, lengths, speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob,
-    a_span,
+    xy, lp, pi, ci, la, draw, lengths, n_paths, seed, speed_edges, headings, slopes, accel_table, bin_, reach,
+    place, accel_prob, a_span,
 ):  # fmt: skip
     """Smoothed log marginals of the first ``L`` steps given those ``L`` steps, for every ``L`` in
     ``lengths``, from a beam's stored forward messages: one backward pass over the kept pairs per
-    prefix. The acceleration densities between the kept pairs of consecutive steps are worked out
-    once for all the prefixes.
+    prefix; and, where ``draw`` asks, paths drawn from the same posteriors (as
+    :func:`sample_paths` draws them). The acceleration densities between the kept pairs of
+    consecutive steps are worked out once for all the prefixes and paths.
 
     Parameters
     ----------
@@ -567,15 +568,20 @@ def beam_smooth(
     lp : (B, T, K) float64; their log likelihoods
     pi, ci, la : (B, T - 1, M) the kept pairs of steps 1..T-1 (see :func:`pair_start`), index
         order
+    draw : (B, n) bool; for which sequences and prefixes to draw paths (``(B, 0)``: none)
     lengths : (n,) int64, each in 2..T
+    n_paths, seed : int; paths per sequence and prefix drawn, and their seed (see
+        :func:`sample_paths`)
     speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob : the motion's
         tables (:class:`MotionArrays`)
     a_span : float, the largest less the smallest entry of ``accel_table``
 
     Returns
     -------
-    (B, sum(lengths), K) float64 normalised log marginals: prefix ``i``'s steps are the rows from
-    ``sum(lengths[:i])`` on (``_NEG`` for none)
+    marginals : (B, sum(lengths), K) float64 normalised log marginals: prefix ``i``'s steps are
+        the rows from ``sum(lengths[:i])`` on (``_NEG`` for none)
+    paths : (P,) int64; for each sequence in turn, for each prefix ``i`` drawn for it, its
+        ``(n_paths, lengths[i])`` point indices (:func:`sample_paths`' rows), flattened
     """
     B, T, K = lp.shape
     M = pi.shape[2]
@@ -584,25 +590,34 @@ def beam_smooth(
         if L < 2 or L > T:
             raise ValueError("prefix lengths must lie in 2..T")
         T_max = max(T_max, L)
+    if draw.shape[1] and draw.shape[1] != len(lengths):
+        raise ValueError("draw must have a column per prefix length")
     tables = (speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob)
     # a term whose rest lies this far below its group's largest stays _NEGLIGIBLE below the sum
     # whatever the accelerations
     floor = _NEGLIGIBLE - a_span
     out = np.empty((B, lengths.sum(), K))
+    n_drawn = 0
+    for b in range(B):
+        for i in range(draw.shape[1]):
+            n_drawn += draw[b, i] * n_paths * lengths[i]
+    paths = np.empty(n_drawn, np.int64)
     beta = np.empty(M)
     prev = np.empty(M)
     joint = np.empty(M)
     scale, head, idx = np.empty(M), np.empty(K), np.empty(M, np.int64)
     # per step t in 2..T_max-1: the pairs of t grouped, their place and likelihood, the densities;
-    # kept for every step where several prefixes share them, else made as the one pass needs them
-    # (scratch of one step, whatever the length)
-    shared = len(lengths) > 1
+    # kept for every step where several prefixes (or paths) share them, else made as the one
+    # pass needs them (scratch of one step, whatever the length)
+    shared = len(lengths) > 1 or n_drawn > 0
     slots = T_max if shared else 1
     start = np.zeros((slots, K + 1), np.int64)
     base = np.empty((slots, M))
     row = np.empty((slots, M + 1), np.int64)
     val = np.empty((slots, M * K))
     work = (xy, lp, pi, ci, la, place, tables, idx, np.empty(M), np.empty(M))
+    scratch = _draw_scratch(n_paths, M, K)
+    o_path = 0
     for b in range(B):
         if shared:
             for t in range(2, T_max):
@@ -637,7 +652,117 @@ def beam_smooth(
                 )
                 beta[:] = prev
             o += L
-    return out
+        for i in range(draw.shape[1]):
+            if draw[b, i]:
+                L = lengths[i]
+                one = paths[o_path : o_path + n_paths * L].reshape(n_paths, L)
+                _draw_paths(b, L, n_paths, seed, work, start, base, row, val, True, one, scratch)
+                o_path += n_paths * L
+    return out, paths
+
+
+@njit(cache=True, nogil=True)
+def _draw_scratch(n, M, K):
+    """Scratch arrays of :func:`_draw_paths` for ``n`` paths through a beam of ``M`` pairs over
+    ``K`` points."""
+    # cw: the last pairs' cumulative weights, then every drawn pair's predecessors' (a group
+    # holds at most K, one per point two steps back)
+    return (
+        np.empty(n, np.int64),
+        np.empty(M, np.int64),
+        np.empty(K + 1, np.int64),
+        np.empty(K, np.int64),
+        np.empty(max(M, M * K)),
+        np.empty(M),
+        np.empty(M, np.int64),
+        np.empty(M),
+    )
+
+
+@njit(cache=True, nogil=True)
+def _draw_paths(b, T, n, seed, work, start, base, row, val, prepared, out, scratch):
+    """Sequence ``b``'s ``n`` paths ``out (n, T)`` (point indices) drawn from the smoothed
+    posterior of its first ``T`` steps (see :func:`sample_paths`). ``start, base, row, val``:
+    :func:`_prepare_step`'s slots, filled for every step ``t`` (slot ``t``) where ``prepared``,
+    else made here one step at a time (slot 0)."""
+    xy, pi, ci, la = work[0], work[2], work[3], work[4]
+    M, K = la.shape[2], xy.shape[2]
+    cur, order, gstart, fill, cw, wq, mark, total = scratch
+    # numba's generator has one state per thread, and a sequence runs on one thread from its
+    # own seed: the legacy API is the one compiled code has
+    np.random.seed(seed)  # noqa: NPY002
+    s = T - 2
+    top = -np.inf
+    for q in range(M):
+        top = max(top, la[b, s, q])
+    acc = 0.0
+    for q in range(M):
+        acc += math.exp(la[b, s, q] - top) if la[b, s, q] > _NEG else 0.0
+        cw[q] = acc
+    u0 = np.random.random()  # noqa: NPY002
+    q = 0
+    for j in range(n):
+        target = (j + u0) / n * acc
+        while q < M - 1 and (cw[q] < target or la[b, s, q] <= _NEG):
+            q += 1
+        cur[j] = q
+        out[j, T - 1], out[j, T - 2] = ci[b, s, q], pi[b, s, q]
+    for t in range(T - 1, 1, -1):
+        s = t - 1  # the paths' pairs (t-1, t); their predecessors are pairs (t-2, t-1)
+        u = t if prepared else 0
+        if not prepared:
+            _prepare_step(b, t, work, start[0], base[0], row[0], val[0])
+        st, rw, vl = start[u], row[u], val[u]
+        # the predecessors grouped by their point at t-1 (a counting sort), and their messages
+        gstart[:] = 0
+        top = -np.inf
+        for q in range(M):
+            if la[b, s - 1, q] > _NEG:
+                gstart[ci[b, s - 1, q] + 1] += 1
+                top = max(top, la[b, s - 1, q])
+        for k in range(K):
+            gstart[k + 1] += gstart[k]
+            fill[k] = gstart[k]
+        for q in range(M):
+            if la[b, s - 1, q] > _NEG:
+                order[fill[ci[b, s - 1, q]]] = q
+                fill[ci[b, s - 1, q]] += 1
+                wq[q] = math.exp(la[b, s - 1, q] - top)
+        # Paths at the same pair draw from the same predecessors: their cumulative weights are
+        # summed once per pair and step (most of the n paths share a few pairs).
+        mark[:] = -1
+        used, likeliest = 0, -1
+        for j in range(n):
+            p = cur[j]
+            a = pi[b, s, p]
+            lo, hi = gstart[a], gstart[a + 1]
+            if mark[p] < 0:
+                mark[p] = used
+                r = p - st[a]  # the pair's place among those leaving a (see _transitions)
+                tot = 0.0
+                for g in range(lo, hi):
+                    q = order[g]
+                    if rw[q + 1] - rw[q] > r:
+                        tot += wq[q] * vl[rw[q] + r]
+                    cw[used + g - lo] = tot
+                total[p] = tot
+                used += hi - lo
+            o, tot = mark[p], total[p]
+            if tot <= 0.0:  # no kept predecessor leads there: the likeliest one
+                if likeliest < 0:
+                    ref = -np.inf
+                    for q in range(M):
+                        if la[b, s - 1, q] > ref:
+                            likeliest, ref = q, la[b, s - 1, q]
+                    likeliest = max(likeliest, 0)
+                cur[j] = likeliest
+            else:
+                target = np.random.random() * tot  # noqa: NPY002
+                g = 0
+                while g < hi - lo - 1 and cw[o + g] < target:
+                    g += 1
+                cur[j] = order[lo + g]
+            out[j, t - 2] = pi[b, s - 1, cur[j]]
 
 
 @njit(cache=True, nogil=True)
@@ -671,71 +796,9 @@ def sample_paths(
     tables = (speed_edges, headings, slopes, accel_table, bin_, reach, place, accel_prob)
     work = (xy, lp, pi, ci, la, place, tables, np.empty(M, np.int64), np.empty(M), np.empty(M))
     out = np.zeros((B, n, T), np.int64)
-    cur = np.empty(n, np.int64)  # each path's pair at the step being drawn back from
-    start, base = np.zeros(K + 1, np.int64), np.empty(M)
-    row, val = np.empty(M + 1, np.int64), np.empty(M * K)
-    order, gstart, fill = np.empty(M, np.int64), np.empty(K + 1, np.int64), np.empty(K, np.int64)
-    cw, wq = np.empty(M), np.empty(M)
+    start, base = np.zeros((1, K + 1), np.int64), np.empty((1, M))
+    row, val = np.empty((1, M + 1), np.int64), np.empty((1, M * K))
+    scratch = _draw_scratch(n, M, K)
     for b in range(B):
-        # numba's generator has one state per thread, and a sequence runs on one thread from its
-        # own seed: the legacy API is the one compiled code has
-        np.random.seed(seed)  # noqa: NPY002
-        s = T - 2
-        top = -np.inf
-        for q in range(M):
-            top = max(top, la[b, s, q])
-        acc = 0.0
-        for q in range(M):
-            acc += math.exp(la[b, s, q] - top) if la[b, s, q] > _NEG else 0.0
-            cw[q] = acc
-        u0 = np.random.random()  # noqa: NPY002
-        q = 0
-        for j in range(n):
-            target = (j + u0) / n * acc
-            while q < M - 1 and (cw[q] < target or la[b, s, q] <= _NEG):
-                q += 1
-            cur[j] = q
-            out[b, j, T - 1], out[b, j, T - 2] = ci[b, s, q], pi[b, s, q]
-        for t in range(T - 1, 1, -1):
-            s = t - 1  # the paths' pairs (t-1, t); their predecessors are pairs (t-2, t-1)
-            _prepare_step(b, t, work, start, base, row, val)
-            # the predecessors grouped by their point at t-1 (a counting sort), and their messages
-            gstart[:] = 0
-            top = -np.inf
-            for q in range(M):
-                if la[b, s - 1, q] > _NEG:
-                    gstart[ci[b, s - 1, q] + 1] += 1
-                    top = max(top, la[b, s - 1, q])
-            for k in range(K):
-                gstart[k + 1] += gstart[k]
-                fill[k] = gstart[k]
-            for q in range(M):
-                if la[b, s - 1, q] > _NEG:
-                    order[fill[ci[b, s - 1, q]]] = q
-                    fill[ci[b, s - 1, q]] += 1
-                    wq[q] = math.exp(la[b, s - 1, q] - top)
-            for j in range(n):
-                p = cur[j]
-                a = pi[b, s, p]
-                r = p - start[a]  # the pair's place among those leaving a (see _transitions)
-                lo, hi = gstart[a], gstart[a + 1]
-                tot = 0.0
-                for g in range(lo, hi):
-                    q = order[g]
-                    if row[q + 1] - row[q] > r:
-                        tot += wq[q] * val[row[q] + r]
-                    cw[g - lo] = tot
-                if tot <= 0.0:  # no kept predecessor leads there: the likeliest one
-                    best, ref = 0, -np.inf
-                    for q in range(M):
-                        if la[b, s - 1, q] > ref:
-                            best, ref = q, la[b, s - 1, q]
-                    cur[j] = best
-                else:
-                    target = np.random.random() * tot  # noqa: NPY002
-                    g = 0
-                    while g < hi - lo - 1 and cw[g] < target:
-                        g += 1
-                    cur[j] = order[lo + g]
-                out[b, j, t - 2] = pi[b, s - 1, cur[j]]
+        _draw_paths(b, T, n, seed, work, start, base, row, val, False, out[b], scratch)
     return out

@@ -168,20 +168,39 @@ class _Beam:
     def smooth(self, lengths: list[int]) -> list[np.ndarray]:
         """Smoothed log marginals ``(B, T, K)`` of the first ``T`` steps given those ``T`` steps,
         for each ``T`` in ``lengths``."""
+        return self.smooth_and_sample(lengths)[0]
+
+    def smooth_and_sample(
+        self, lengths: list[int], draw: np.ndarray | None = None, n: int = 0, seed: int = 0
+    ) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
+        """:meth:`smooth`, and for each ``T`` in ``lengths`` the paths :meth:`sample` draws for
+        the sequences ``draw[:, i]`` (``draw (B, len(lengths))`` bool, default none): ``(rows, n,
+        T)`` point indices (None where ``T == 1`` or ``draw`` is None), with the work the
+        backward passes and the draws share done once."""
         out: list[np.ndarray | None] = [self.marg[0][:, None] if T == 1 else None for T in lengths]
-        longer = [T for T in lengths if T > 1]
+        drawn: list[np.ndarray | None] = [None] * len(lengths)
+        longer = [i for i, T in enumerate(lengths) if T > 1]
         if longer:
-            m, T_max = self.m, max(longer)
+            m, T_max = self.m, max(lengths[i] for i in longer)
             pi, ci, la = (p.upto(T_max - 1) for p in self._pairs)
-            rows = batch_map(
-                beam_smooth, 5, self.points(T_max), self.likelihoods(T_max), pi, ci, la,
-                np.array(longer, np.int64), m.speed_edges, m.headings, m.heading_slopes, m.accel_table,
-                m.bin, m.reach, m.place, m.accel_prob, m.accel_max - m.accel_min,
+            each = np.array([lengths[i] for i in longer], np.int64)
+            pick = np.zeros((len(pi), 0), bool) if draw is None else np.asarray(draw, bool)[:, longer]
+            rows, paths = batch_map(
+                beam_smooth, 6, self.points(T_max), self.likelihoods(T_max), pi, ci, la, pick, each, int(n),
+                int(seed), m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place,
+                m.accel_prob, m.accel_max - m.accel_min,
             )  # fmt: skip
-            ends = np.cumsum(longer)
-            parts = iter(np.split(rows, ends[:-1], axis=1))
+            parts = iter(np.split(rows, np.cumsum(each)[:-1], axis=1))
             out = [next(parts) if o is None else o for o in out]
-        return out  # type: ignore[return-value]
+            if draw is not None:
+                # the paths lie sequence by sequence, each one's prefixes in turn
+                size = pick * (int(n) * each)
+                first = (np.cumsum(size.ravel()) - size.ravel()).reshape(size.shape)
+                for c, i in enumerate(longer):
+                    who = np.flatnonzero(pick[:, c])
+                    at = first[who, c][:, None] + np.arange(int(n) * lengths[i])
+                    drawn[i] = paths[at].reshape(len(who), int(n), lengths[i])
+        return out, drawn  # type: ignore[return-value]
 
 
 def _vague_shift(pos: np.ndarray, vague: np.ndarray, gate: float = VAGUE_GATE) -> np.ndarray:
@@ -440,15 +459,19 @@ class CandidateFilter:
         fxy = (cxy[:, :, None] + self._offsets).reshape(B, -1, 2)
         return fxy, np.repeat(clp, n, axis=1)
 
-    def _memory_shift(self, fine: _Beam, T: int, rows: np.ndarray) -> np.ndarray:
+    def _memory_shift(
+        self, fine: _Beam, T: int, rows: np.ndarray, idx: np.ndarray | None = None
+    ) -> np.ndarray:
         """``(B, T, 2)`` grid units: for the users ``rows``, the mean of a sub-cell beam's paths
         weighed by the memory less their plain mean (see
-        :class:`~estimation.smoothing.memory.MotionMemory`); zero for the others."""
+        :class:`~estimation.smoothing.memory.MotionMemory`); zero for the others. ``idx
+        (len(rows), memory_paths, T)``: those paths where already drawn (default: drawn here)."""
         assert self.memory is not None
         xy = fine.points(T)
         out = np.zeros((xy.shape[0], T, 2))
         if len(rows):
-            idx = fine.sample(T, self.memory_paths, rows)
+            if idx is None:
+                idx = fine.sample(T, self.memory_paths, rows)
             mem = self.memory
             # the tables as stored (float32, no copy): the kernel sums them in float64
             out[rows] = batch_map(
@@ -527,7 +550,13 @@ class CandidateFilter:
         metres, float64, for each prefix length ``T`` in ``lengths``, given its posterior weight
         ``(B,)`` for each (the memory moves only the users it counts for)."""
         cells = h.cells.smooth(lengths)
-        fines = h.fine.smooth(lengths) if h.fine is not None else None
+        # the users whose paths the memory weighs (see _memory_shift), drawn with the smoothing
+        remember = self.memory is not None and h.remembers
+        draw = np.stack([w >= MEMORY_WEIGHT for w in weight], 1) & (remember & (np.array(lengths) >= 4))
+        if h.fine is not None:
+            fines, paths = h.fine.smooth_and_sample(lengths, draw if draw.any() else None, self.memory_paths)
+        else:
+            fines = None
         out = []
         for n, T in enumerate(lengths):
             xy = torch.from_numpy(h.cells.points(T)).float().double()  # as the network reads them
@@ -540,8 +569,8 @@ class CandidateFilter:
             # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
             w = np.exp(fines[n])
             sub = (w[..., None] * h.fine.points(T)).sum(2)
-            if self.memory is not None and h.remembers and T >= 4:
-                sub = sub + self._memory_shift(h.fine, T, np.flatnonzero(weight[n] >= MEMORY_WEIGHT))
+            if remember and T >= 4:
+                sub = sub + self._memory_shift(h.fine, T, np.flatnonzero(draw[:, n]), paths[n])
             sub = torch.from_numpy(sub * self.spacing)
             inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
             mass = (p * inside).sum(-1, keepdim=True)

@@ -38,7 +38,7 @@ from mmwsim._threads import batch_map
 
 from ..matching import GUIDE
 from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_step, sample_paths
-from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk, _rw_transitions, _step_distances
+from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk_prefixes, _rw_transitions, _step_distances
 from .memory import MEMORY_PATHS, MEMORY_WEIGHT, MotionMemory, memory_shift
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
@@ -510,6 +510,8 @@ class CandidateFilter:
         per_model = [
             self._smooth_one(h, lengths, [w[:, i] for w in weights]) for i, h in enumerate(self._models)
         ]
+        lp_all = torch.from_numpy(self.cells.likelihoods(max(lengths))).float()
+        walks = [_random_walk_prefixes(trans, lp_all, lengths) for trans in self._transitions()]
         out = []
         for n, T in enumerate(lengths):
             xy = torch.from_numpy(self.cells.points(T)).float()
@@ -522,8 +524,7 @@ class CandidateFilter:
                 p += w[..., i] * pi
                 fine += w[..., i] * fi
             cv = p.log().clamp(min=-1e300).float()
-            rw = [_random_walk(trans[:, : T - 1], lp) for trans in self._transitions()]
-            post = torch.stack([lp, *rw, cv], -1)
+            post = torch.stack([lp, *(walk[n] for walk in walks), cv], -1)
             if self.vague_gate is not None:
                 shift = _vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate)
                 xy, fine = xy + torch.from_numpy(shift)[:, :, None].float(), fine + torch.from_numpy(shift)

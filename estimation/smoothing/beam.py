@@ -270,11 +270,18 @@ def _keep_best(dense, M, pi, ci, la, lowest=_NEG):
             n_ok += 1
     cut, ties = lowest, 0
     if n_ok > M:
-        # A selection, not a sort: the kept pairs' order is the index order.
-        cut = np.partition(flat, N - M)[N - M]
-        ties = M
+        # A selection, not a sort: the kept pairs' order is the index order. The M-th largest
+        # lies above lowest, so it is selected among those alone (most pairs are pruned).
+        above = np.empty(n_ok)
+        n = 0
         for q in range(N):
-            if flat[q] > cut:
+            if flat[q] > lowest:
+                above[n] = flat[q]
+                n += 1
+        cut = np.partition(above, n_ok - M)[n_ok - M]
+        ties = M
+        for q in range(n_ok):
+            if above[q] > cut:
                 ties -= 1
     n = 0
     for q in range(N):

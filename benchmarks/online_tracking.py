@@ -52,7 +52,7 @@ def main() -> None:
     net = est.net
 
     # Steady state: the kernels compiled (or loaded from numba's cache) and torch warmed up first.
-    xy0, score0 = est.search(bits[:2].float())
+    xy0, score0 = est.search(bits[:64].float())  # drivers among them: the route kernels compile too
     est.predict(est.candidate_filter().run(xy0, score0).smooth())
     kxy, post = candidate_features(xy0, score0, net.k, motion=net.motion)
     est.predict((kxy, post, net.smoothed(kxy, post)))

@@ -87,6 +87,12 @@ def test_the_beam_keeps_the_largest_pairs_in_index_order_ties_included_by_index(
     assert _keep_best(dense, 10, pi, ci, la) == 8
     assert list(la[:8]) == [1.0, 5.0, 3.0, 3.0, 4.0, 3.0, 2.0, 0.5] and (la[8:] == _NEG).all()
     assert list(pi[:8]) == [0, 0, 0, 1, 1, 2, 2, 2]
+    # above a floor (the forward step's keys, most of them zero): the cut among the entries above
+    # it, a tie at the cut again taken in index order
+    keys = np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 3.0]])
+    pi, ci, la = np.empty(3, np.int64), np.empty(3, np.int64), np.empty(3)
+    assert _keep_best(keys, 3, pi, ci, la, 0.0) == 3
+    assert list(zip(pi, ci, la, strict=True)) == [(0, 1, 2.0), (1, 2, 1.0), (2, 2, 3.0)]
 
 
 def _forward_reference(xpp, xp, xc, pi, ci, la, lp, M, motion):

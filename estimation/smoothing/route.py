@@ -479,13 +479,14 @@ def route_track(
     flat = np.full(len(prior), 1.0 / len(prior))
     prior = (1 - ROUTE_FLOOR) * prior + ROUTE_FLOOR * flat
     steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)
-    fast = np.flatnonzero(np.median(steps, axis=1) > min_speed)
+    typical = np.median(steps, axis=1)
+    fast = np.flatnonzero(typical > min_speed)
     routes = street_routes(net, tracked[fast])
     lines = []  # (user, a line it may drive along, its track's arc lengths there)
     for b, r in zip(fast, routes, strict=True):
         if r is None:
             continue
-        step = float(np.median(steps[b]))
+        step = float(typical[b])
         arc, side = _arc_of(r, tracked[b], step)
         lane = float(np.mean(side))
         # a track that keeps to one side of the centre line is a driver in a lane beside it: the

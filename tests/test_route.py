@@ -180,6 +180,20 @@ def test_a_lane_is_mitred_at_corners_and_crosses_over_where_its_route_turns_back
     assert route._offset(r, 0.0) is r
 
 
+def test_positions_are_put_on_their_route_by_arc_length_and_side():
+    # west along a street to its dead end at (0, 0) and back east, 0.5 m north of the centre
+    # line, 8.3 m per step: the arc length grows by a step each time, the turn included (near
+    # the dead end both legs are as near), and the side is right going west, left going east
+    r = np.array([[80.0, 0.0], [60.0, 0.0], [0.0, 0.0], [60.0, 0.0]])
+    x = np.abs(30.0 - 8.3 * np.arange(7))
+    arc, side = route._arc_of(r, np.stack([x, np.full(7, 0.5)], -1), 8.3)
+    np.testing.assert_allclose(arc, 80.0 + np.r_[-x[:4], x[4:]], atol=1e-12)
+    np.testing.assert_allclose(side, np.r_[np.full(4, -0.5), np.full(3, 0.5)], atol=1e-12)
+    # off the end of a piece: the foot is the piece's end, the side the distance across it
+    arc, side = route._arc_of(r[:2], np.array([[90.0, -2.0]]), 1.0)
+    assert arc[0] == 0.0 and side[0] == 2.0
+
+
 def test_drivers_turn_back_at_a_dead_end():
     # west along the L's first street to its dead end at (0, 0) and back, 8.3 m per step: the
     # street network's drivers turn there, and the route turns with them

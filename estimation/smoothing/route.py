@@ -25,7 +25,6 @@ import numba
 import numpy as np
 
 from mmwsim._threads import batch_map
-from mmwsim.trajectories import segment_feet
 
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
@@ -233,15 +232,48 @@ def _arc_of(route: np.ndarray, x: np.ndarray, step: float) -> tuple[np.ndarray, 
     arc length growing by about the track's typical ``step`` (metres) is taken (a Viterbi pass
     over the pieces, :func:`_pieces`).
     """
-    a, ab = route[:-1], np.diff(route, axis=0)
-    length = np.linalg.norm(ab, axis=1)
-    t, d = segment_feet(x, a, ab)  # (T, pieces)
-    arc = np.r_[0.0, np.cumsum(length)][:-1] + t * length
-    d = np.where(d <= d.min(1, keepdims=True) + _NEAR, d, np.inf)  # only the pieces it lies on
-    i = _pieces(arc, d, float(step))
-    rows = np.arange(len(x))
-    w, u = x - a[i], ab[i] / np.maximum(length[i], 1e-12)[:, None]
-    return arc[rows, i], u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+    route = np.ascontiguousarray(route, dtype=np.float64)
+    return _arc_kernel(route, np.ascontiguousarray(x, dtype=np.float64), float(step))
+
+
+@numba.njit(cache=True, nogil=True)
+def _arc_kernel(
+    route: np.ndarray, x: np.ndarray, step: float
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`_arc_of`, compiled: it runs once per line weighed (the feet on every piece as
+    :func:`mmwsim.trajectories.segment_feet` finds them, operation for operation)."""
+    P, T = len(route) - 1, len(x)
+    ab = np.empty((P, 2))
+    length, start = np.empty(P), np.empty(P)
+    done = 0.0
+    for p in range(P):
+        ab[p, 0], ab[p, 1] = route[p + 1, 0] - route[p, 0], route[p + 1, 1] - route[p, 1]
+        length[p] = np.sqrt(ab[p, 0] * ab[p, 0] + ab[p, 1] * ab[p, 1])
+        start[p] = done
+        done += length[p]
+    arc, d = np.empty((T, P)), np.empty((T, P))
+    for k in range(T):
+        nearest = np.inf
+        for p in range(P):
+            wx, wy = x[k, 0] - route[p, 0], x[k, 1] - route[p, 1]
+            t = (wx * ab[p, 0] + wy * ab[p, 1]) / max(ab[p, 0] * ab[p, 0] + ab[p, 1] * ab[p, 1], 1e-18)
+            t = min(max(t, 0.0), 1.0)
+            fx, fy = x[k, 0] - (route[p, 0] + t * ab[p, 0]), x[k, 1] - (route[p, 1] + t * ab[p, 1])
+            d[k, p] = np.sqrt(fx * fx + fy * fy)
+            arc[k, p] = start[p] + t * length[p]
+            nearest = min(nearest, d[k, p])
+        for p in range(P):  # only the pieces it lies on
+            if not d[k, p] <= nearest + _NEAR:
+                d[k, p] = np.inf
+    piece = _pieces(arc, d, step)
+    along, side = np.empty(T), np.empty(T)
+    for k in range(T):
+        i = piece[k]
+        wx, wy = x[k, 0] - route[i, 0], x[k, 1] - route[i, 1]
+        n = max(length[i], 1e-12)
+        along[k] = arc[k, i]
+        side[k] = ab[i, 0] / n * wy - ab[i, 1] / n * wx
+    return along, side
 
 
 @numba.njit(cache=True, nogil=True)

@@ -672,14 +672,14 @@ def beam_smooth(
 def _draw_scratch(n, M, K):
     """Scratch arrays of :func:`_draw_paths` for ``n`` paths through a beam of ``M`` pairs over
     ``K`` points."""
-    # cw: the last pairs' cumulative weights, then every drawn pair's predecessors' (a group
-    # holds at most K, one per point two steps back)
+    # cw: the last pairs' cumulative weights (M), then every drawn pair's predecessors' (at most
+    # M drawn pairs, each group at most K: one per point two steps back)
     return (
         np.empty(n, np.int64),
         np.empty(M, np.int64),
         np.empty(K + 1, np.int64),
         np.empty(K, np.int64),
-        np.empty(max(M, M * K)),
+        np.empty(M * K),
         np.empty(M),
         np.empty(M, np.int64),
         np.empty(M),

@@ -222,6 +222,35 @@ def test_all_prefixes_at_once_are_each_prefix_smoothed_alone():
         f.smooth_prefixes([3, 10])
 
 
+def test_random_walks_of_every_prefix_are_the_sums_over_all_their_paths():
+    from estimation.smoothing.beam import rw_smooth
+
+    g = np.random.default_rng(4)
+    B, T, K = 2, 4, 3
+    xy = g.uniform(0, 8, (B, T, K, 2))
+    lp = np.log(g.uniform(0.1, 1.0, (B, T, K)))
+    scales = np.array([1.5, 4.0])
+    lengths = np.array([4, 1, 3, 2])
+    got = rw_smooth(xy, lp, 0.5 / scales**2, lengths)
+    assert got.shape == (B, lengths.sum(), K, len(scales))
+    start = np.cumsum([0, *lengths])
+    for b, (si, s), (n, L) in itertools.product(range(B), enumerate(scales), enumerate(lengths)):
+        marg = np.zeros((L, K))
+        for path in itertools.product(range(K), repeat=int(L)):
+            logp = sum(lp[b, t, j] for t, j in enumerate(path))
+            for t in range(L - 1):
+                logp -= np.square(xy[b, t + 1, path[t + 1]] - xy[b, t, path[t]]).sum() / (2 * s**2)
+            marg[np.arange(L), path] += np.exp(logp)
+        want = np.log(marg / marg.sum(1, keepdims=True))
+        np.testing.assert_allclose(got[b, start[n] : start[n + 1], :, si], want, atol=1e-12)
+    # steps kilometres apart: every weight underflows, and each step keeps its own likelihoods
+    far = xy.copy()
+    far[:, 1::2] += 3000.0
+    got = rw_smooth(far, lp, 0.5 / scales**2, np.array([4]))
+    want = lp - np.log(np.exp(lp).sum(-1, keepdims=True))
+    np.testing.assert_allclose(got, np.repeat(want[..., None], 2, -1), atol=1e-12)
+
+
 def test_a_tables_kernel_arrays_are_made_once_and_again_when_it_changes():
     table = MotionTable().fit(_tracks(50))
     first = motion_arrays(table)

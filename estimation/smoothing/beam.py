@@ -35,6 +35,7 @@ __all__ = [
     "motion_arrays",
     "pair_forward",
     "pair_start",
+    "rw_smooth",
     "rw_step",
     "sample_paths",
 ]
@@ -253,6 +254,100 @@ def rw_step(prev_xy, prev_f, xy, lp, inv_two_s2):
             norm = top + math.log(tot)
             for j in range(S):
                 out[b, j, s] -= norm
+    return out
+
+
+@njit(cache=True, nogil=True)
+def rw_smooth(xy, lp, inv_two_s2, lengths):
+    """The random-walk smoothers (:func:`~estimation.smoothing.hmm.motion_posterior`) of the
+    prefixes ``lengths`` of kept candidates, every step scale at once.
+
+    The transition weights and the forward messages are worked out once, to the longest prefix,
+    and a backward pass runs per prefix; a sum over candidates is a product with the step's
+    transition weights in linear space, each message rescaled by its largest log value, as
+    :func:`~estimation.smoothing.hmm.motion_posterior` does in torch for one prefix (and one
+    scale): the same to float64 rounding.
+
+    Parameters
+    ----------
+    xy : (B, T, K, 2) float64, metres; the steps' candidates
+    lp : (B, T, K) float64; their log likelihoods
+    inv_two_s2 : (n_s,) float64; ``1 / (2 s^2)`` per step scale ``s`` (metres)
+    lengths : (P,) int64; prefix lengths, each 1..T
+
+    Returns
+    -------
+    (B, sum(lengths), K, n_s) float64 smoothed log posteriors, normalised per step and scale:
+    the prefixes' steps one prefix after another
+    """
+    B, T, K = lp.shape
+    ns = len(inv_two_s2)
+    P = len(lengths)
+    T_max = 1
+    for p in range(P):
+        T_max = max(T_max, lengths[p])
+    out = np.empty((B, lengths.sum(), K, ns))
+    trans = np.empty((max(T_max - 1, 1), ns, K, K))
+    fwd = np.empty((T_max, K))
+    bwd = np.empty((T_max, K))
+    u = np.empty(K)
+    d2 = np.empty(K)
+    sums = np.empty(K)
+    for b in range(B):
+        for t in range(T_max - 1):
+            for i in range(K):
+                for j in range(K):
+                    dx = xy[b, t, i, 0] - xy[b, t + 1, j, 0]
+                    dy = xy[b, t, i, 1] - xy[b, t + 1, j, 1]
+                    d2[j] = dx * dx + dy * dy
+                for s in range(ns):
+                    for j in range(K):
+                        # below e^-746 the weight is 0 in float64 whether or not it is worked out
+                        e = -d2[j] * inv_two_s2[s]
+                        trans[t, s, i, j] = math.exp(e) if e > -746.0 else 0.0
+        for s in range(ns):
+            for k in range(K):
+                fwd[0, k] = lp[b, 0, k]
+            for t in range(1, T_max):
+                m = -np.inf
+                for i in range(K):
+                    m = max(m, fwd[t - 1, i])
+                for j in range(K):
+                    sums[j] = 0.0
+                for i in range(K):
+                    ui = math.exp(fwd[t - 1, i] - m)
+                    for j in range(K):
+                        sums[j] += trans[t - 1, s, i, j] * ui
+                for j in range(K):
+                    fwd[t, j] = math.log(max(sums[j], 1e-300)) + m + lp[b, t, j]
+            start = 0
+            for p in range(P):
+                L = lengths[p]
+                for k in range(K):
+                    bwd[L - 1, k] = 0.0
+                for t in range(L - 2, -1, -1):
+                    m = -np.inf
+                    for j in range(K):
+                        u[j] = lp[b, t + 1, j] + bwd[t + 1, j]
+                        m = max(m, u[j])
+                    for j in range(K):
+                        u[j] = math.exp(u[j] - m)
+                    for i in range(K):
+                        acc = 0.0
+                        for j in range(K):
+                            acc += trans[t, s, i, j] * u[j]
+                        bwd[t, i] = math.log(max(acc, 1e-300)) + m
+                for t in range(L):
+                    top = -np.inf
+                    for k in range(K):
+                        top = max(top, fwd[t, k] + bwd[t, k])
+                    tot = 0.0
+                    for k in range(K):
+                        tot += math.exp(fwd[t, k] + bwd[t, k] - top)
+                    norm = top + math.log(tot)
+                    for k in range(K):
+                        out[b, start + t, k, s] = fwd[t, k] + bwd[t, k] - norm
+                start += L
     return out
 
 

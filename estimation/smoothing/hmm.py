@@ -81,14 +81,8 @@ def _random_walk(trans: torch.Tensor, logp: torch.Tensor) -> torch.Tensor:
     a candidate no earlier candidate can reach at all is floored at ``exp(-690)`` instead of
     ``-inf``, so a sequence whose steps are all that far apart degrades to per-step likelihoods.
     """
-    return _random_walk_prefixes(trans, logp, [logp.shape[1]])[0]
-
-
-def _random_walk_prefixes(trans: torch.Tensor, logp: torch.Tensor, lengths: list[int]) -> list[torch.Tensor]:
-    """:func:`_random_walk` of the first ``L`` steps of ``trans (B, >= T-1, K, K)`` and ``logp
-    (B, >= T, K)`` for each ``L`` in ``lengths``: the same results, the forward messages the
-    prefixes share worked out once."""
     lp = logp.double()
+    T = lp.shape[1]
 
     def propagate(v: torch.Tensor, t: int, forward: bool) -> torch.Tensor:
         m = v.amax(-1, keepdim=True)
@@ -97,16 +91,13 @@ def _random_walk_prefixes(trans: torch.Tensor, logp: torch.Tensor, lengths: list
         return torch.log(s.squeeze(-1).clamp(min=1e-300)) + m
 
     fwd = [lp[:, 0]]
-    for t in range(1, max(lengths)):
+    for t in range(1, T):
         fwd.append(propagate(fwd[-1], t - 1, True) + lp[:, t])
-    out = []
-    for T in lengths:
-        bwd = [torch.zeros_like(lp[:, T - 1])]
-        for t in range(T - 2, -1, -1):
-            bwd.append(propagate(lp[:, t + 1] + bwd[-1], t, False))
-        post = torch.stack(fwd[:T], 1) + torch.stack(bwd[::-1], 1)
-        out.append(torch.log_softmax(post, dim=-1).float())
-    return out
+    bwd = [torch.zeros_like(lp[:, -1])]
+    for t in range(T - 2, -1, -1):
+        bwd.append(propagate(lp[:, t + 1] + bwd[-1], t, False))
+    post = torch.stack(fwd, 1) + torch.stack(bwd[::-1], 1)
+    return torch.log_softmax(post, dim=-1).float()
 
 
 def velocity_posterior(

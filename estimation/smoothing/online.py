@@ -37,8 +37,8 @@ import torch
 from mmwsim._threads import batch_map
 
 from ..matching import GUIDE
-from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_step, sample_paths
-from .hmm import LOGP_FLOOR, STEP_SIGMAS, _random_walk_prefixes, _rw_transitions, _step_distances
+from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_smooth, rw_step, sample_paths
+from .hmm import LOGP_FLOOR, STEP_SIGMAS
 from .memory import MEMORY_PATHS, MEMORY_WEIGHT, MotionMemory, memory_shift
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
@@ -379,7 +379,6 @@ class CandidateFilter:
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
         self._rw: np.ndarray | None = None  # (B, k, n_s) filtered random-walk posteriors
-        self._trans: list[torch.Tensor] | None = None  # see _transitions
         self.positions: list[np.ndarray] = []  # (B, 2) filtered estimate of every step
         self.vague: list[np.ndarray] = []  # (B,) bool per step: its fingerprint says little
 
@@ -510,8 +509,14 @@ class CandidateFilter:
         per_model = [
             self._smooth_one(h, lengths, [w[:, i] for w in weights]) for i, h in enumerate(self._models)
         ]
-        lp_all = torch.from_numpy(self.cells.likelihoods(max(lengths))).float()
-        walks = [_random_walk_prefixes(trans, lp_all, lengths) for trans in self._transitions()]
+        # the random walks read the candidates as the network does (float32)
+        T_max = max(lengths)
+        walks = batch_map(
+            rw_smooth, 2, self.cells.points(T_max).astype(np.float32).astype(np.float64),
+            self.cells.likelihoods(T_max).astype(np.float32).astype(np.float64), self._inv_two_s2,
+            np.array(lengths, np.int64),
+        ).astype(np.float32)  # fmt: skip
+        starts = np.cumsum([0, *lengths])
         out = []
         for n, T in enumerate(lengths):
             xy = torch.from_numpy(self.cells.points(T)).float()
@@ -524,25 +529,13 @@ class CandidateFilter:
                 p += w[..., i] * pi
                 fine += w[..., i] * fi
             cv = p.log().clamp(min=-1e300).float()
-            post = torch.stack([lp, *(walk[n] for walk in walks), cv], -1)
+            walk = torch.from_numpy(walks[:, starts[n] : starts[n] + T])
+            post = torch.cat([lp[..., None], walk, cv[..., None]], -1)
             if self.vague_gate is not None:
                 shift = _vague_shift(fine.numpy(), np.stack(self.vague[:T], 1), self.vague_gate)
                 xy, fine = xy + torch.from_numpy(shift)[:, :, None].float(), fine + torch.from_numpy(shift)
             out.append((xy, post.clamp(min=LOGP_FLOOR), fine.float()))
         return out
-
-    def _transitions(self) -> list[torch.Tensor]:
-        """The random-walk transition weights ``(B, steps - 1, k, k)`` of every step scale, made
-        once per step and shared by the prefixes' smoothing."""
-        done = 0 if self._trans is None else self._trans[0].shape[1]
-        if self._trans is None or done < self.steps - 1:
-            d2 = _step_distances(torch.from_numpy(self.cells.points(self.steps)[:, done:]).float())
-            new = [_rw_transitions(d2, s) for s in STEP_SIGMAS]
-            self._trans = (
-                new if self._trans is None else [torch.cat(p, 1) for p in zip(self._trans, new, strict=True)]
-            )
-        assert self._trans is not None
-        return self._trans
 
     def _smooth_one(
         self, h: _Hypothesis, lengths: list[int], weight: list[np.ndarray]

@@ -249,6 +249,8 @@ def test_random_walks_of_every_prefix_are_the_sums_over_all_their_paths():
     got = rw_smooth(far, lp, 0.5 / scales**2, np.array([4]))
     want = lp - np.log(np.exp(lp).sum(-1, keepdims=True))
     np.testing.assert_allclose(got, np.repeat(want[..., None], 2, -1), atol=1e-12)
+    with pytest.raises(ValueError, match="prefix lengths must lie in 1..T"):
+        rw_smooth(xy, lp, 0.5 / scales**2, np.array([2, 5]))
 
 
 def test_a_tables_kernel_arrays_are_made_once_and_again_when_it_changes():

@@ -285,6 +285,8 @@ def rw_smooth(xy, lp, inv_two_s2, lengths):
     P = len(lengths)
     T_max = 1
     for p in range(P):
+        if lengths[p] < 1 or lengths[p] > T:
+            raise ValueError("prefix lengths must lie in 1..T")
         T_max = max(T_max, lengths[p])
     out = np.empty((B, lengths.sum(), K, ns))
     trans = np.empty((max(T_max - 1, 1), ns, K, K))

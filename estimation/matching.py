@@ -201,27 +201,27 @@ class FingerprintMatcher:
         tiles = self.tile_index()
         ref = [] if refs is None else list(np.asarray(refs, np.float64).transpose(1, 0, 2))
         bonus, spread, per_step = GUIDE
-        xs, ss = [], []
+        if T == 0:
+            refs_out = np.stack(ref, 1) if ref else np.zeros((B, 0, 2))
+            return torch.zeros((B, 0, k, 2)), torch.zeros((B, 0, k)), refs_out
+        # Every step's plain top k in one search (a user's steps score the same tiles), then the
+        # guided selection where the steps before are needed.
+        indptr, ones = self._ones(bits.reshape(B * T, *bits.shape[2:]))
+        score, rows = (a.reshape(B, T, k) for a in tiles.topk(indptr, ones, k))
         for t in range(T):
-            indptr, ones = self._ones(bits[:, t])
-            score, rows = tiles.topk(indptr, ones, k)
             # Only where the k-th point is about as likely as the best can the bonus matter.
-            vague = np.flatnonzero(score[:, 0] - score[:, -1] < math.log1p(bonus))
+            vague = np.flatnonzero(score[:, t, 0] - score[:, t, -1] < math.log1p(bonus))
             if ref and len(vague):
                 last = ref[-1][vague]
                 v = last - ref[-2][vague] if len(ref) > 1 else np.zeros_like(last)
                 s = spread + per_step * np.linalg.norm(v, axis=-1)
-                n_ones = indptr[vague + 1] - indptr[vague]
+                fp = vague * T + t
+                n_ones = indptr[fp + 1] - indptr[fp]
                 sub_ptr = np.r_[0, np.cumsum(n_ones)]
-                sub = np.repeat(indptr[vague] - sub_ptr[:-1], n_ones) + np.arange(sub_ptr[-1])
-                score[vague], rows[vague] = tiles.topk(sub_ptr, ones[sub], k, (last + v, s, bonus))
-            xs.append(torch.from_numpy(self.grid_xy[rows]).float())
-            ss.append(torch.from_numpy(score))
-            ref = (ref + [self.grid_xy[rows[:, 0]]])[-2:]
-        refs_out = np.stack(ref, 1) if ref else np.zeros((B, 0, 2))
-        if not xs:
-            return torch.zeros((B, 0, k, 2)), torch.zeros((B, 0, k)), refs_out
-        return torch.stack(xs, 1), torch.stack(ss, 1), refs_out
+                sub = np.repeat(indptr[fp] - sub_ptr[:-1], n_ones) + np.arange(sub_ptr[-1])
+                score[vague, t], rows[vague, t] = tiles.topk(sub_ptr, ones[sub], k, (last + v, s, bonus))
+            ref = (ref + [self.grid_xy[rows[:, t, 0]]])[-2:]
+        return torch.from_numpy(self.grid_xy[rows]).float(), torch.from_numpy(score), np.stack(ref, 1)
 
     def match(self, bits: torch.Tensor) -> np.ndarray:
         """Best grid point per fingerprint.

@@ -125,6 +125,16 @@ def test_track_candidates_look_where_the_user_goes_when_a_fingerprint_says_nothi
     step = m.track_candidates(bits[:, 4:], 8, one[2])
     assert torch.equal(step[0], xy_g[:, 4:]) and np.array_equal(step[2], refs)
     assert np.array_equal(refs[0], path[3:])
+    # the users of a batch are searched as each alone: a second user leaves the strip a step in
+    path2 = np.stack([np.arange(3.0, 13.0, 2.0), np.full(5, 10.0)], -1)
+    rows2 = [int(np.flatnonzero((xy == p).all(1))[0]) for p in path2]
+    both = torch.cat([bits, torch.from_numpy(pdp[rows2] >= -115.0).float()[None]])
+    xy_b, score_b, refs_b = m.track_candidates(both, 8)
+    alone = m.track_candidates(both[1:], 8)
+    assert torch.equal(xy_b[:1], xy_g) and torch.equal(score_b[:1], score_g)
+    assert torch.equal(xy_b[1:], alone[0]) and torch.equal(score_b[1:], alone[1])
+    assert np.array_equal(refs_b, np.concatenate([refs, alone[2]]))
+    assert all(np.linalg.norm(alone[0][0, t].numpy() - path2[t], axis=-1).min() == 0.0 for t in (2, 3, 4))
 
 
 class _Offset:

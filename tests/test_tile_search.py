@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from estimation import tile_search
 from estimation.matching import FingerprintMatcher
 from estimation.noise import fingerprint_bits
 from estimation.tile_search import TILE_POINTS
@@ -68,7 +69,7 @@ def test_tiles_cover_the_grid_once_in_pieces_of_at_most_tile_points():
 
 
 @pytest.mark.parametrize("kind", ["smooth", "rough", "blocky"])
-def test_candidates_are_the_dense_top_k(kind):
+def test_candidates_are_the_dense_top_k(kind, monkeypatch):
     xy, pdp = _city(kind=kind)
     m = FingerprintMatcher(torch.from_numpy(pdp), xy, sigma=3.0, threshold=-115.0)
     rows = np.arange(0, len(xy), 5)
@@ -81,6 +82,11 @@ def test_candidates_are_the_dense_top_k(kind):
         for seed in (0, 1, 10**6):
             s2, r2 = m.tile_index().topk(*m._ones(bits), k, seed=seed)
             assert np.array_equal(r2, got.numpy()) and np.array_equal(s2, score.numpy())
+    # searched in batches of a few fingerprints, tile by tile, the result is the same
+    monkeypatch.setattr(tile_search, "_BATCH", 7)
+    s4, r4 = m.tile_index().topk(*m._ones(bits), 40)
+    monkeypatch.undo()
+    assert np.array_equal(r4, m.candidates(bits, 40)[1].numpy()) and len(bits) > 3 * 7
     # ties go to the lower row: the five points that share a fingerprint come next to each
     # other in row order
     r = m.candidates(torch.from_numpy(pdp[[6]] >= -115.0).float(), 60)[1][0].tolist()

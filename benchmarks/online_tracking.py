@@ -2,7 +2,9 @@
 
 Usage: python benchmarks/online_tracking.py RUN DATASET [--max 1000] [--sigma 6] [--threads 2]
 
-Both start from the same matcher candidates of the same noisy fingerprints (seen area, 7 steps):
+Both start from the same matcher candidates of the same noisy fingerprints (seen area, 7 steps),
+and run in turn on each batch of 512 sequences, so that a machine that slows down or speeds up
+during the run weighs on both alike:
 
 * offline: the dense smoothers re-run on every prefix (``candidate_features``, ``subcell_mean``:
   ``O(T K^3)`` per prefix), what evaluation did before;
@@ -61,25 +63,31 @@ def main() -> None:
     found = [est.search(bits[a : a + 512].float()) for a in range(0, n, 512)]
     t_search = time.perf_counter() - t
 
-    def offline(L: int) -> torch.Tensor:
-        out = []
-        for xy, score in found:
-            kxy, post = candidate_features(xy[:, :L], score[:, :L], net.k, motion=net.motion)
-            out.append(est.predict((kxy, post, net.smoothed(kxy, post))))
-        return torch.cat(out)
+    def offline(xy: torch.Tensor, score: torch.Tensor, L: int) -> torch.Tensor:
+        kxy, post = candidate_features(xy[:, :L], score[:, :L], net.k, motion=net.motion)
+        return est.predict((kxy, post, net.smoothed(kxy, post)))
 
     def timed(fn):
         t = time.perf_counter()
         r = fn()
         return r, time.perf_counter() - t
 
-    off7, t_off7 = timed(lambda: offline(7))
-    _, t_off_all = timed(lambda: [offline(L) for L in range(2, 8)])
-    filters, t_fwd = timed(lambda: [est.candidate_filter().run(xy, score) for xy, score in found])
-    on7, t_bwd7 = timed(lambda: torch.cat([est.predict(f.smooth(7)) for f in filters]))
-    _, t_bwd_all = timed(
-        lambda: [[est.predict(x) for x in f.smooth_prefixes(list(range(2, 8)))] for f in filters]
-    )
+    # Offline and online in turn on each batch, so that both meet the machine in the same state.
+    t_off7 = t_off_all = t_fwd = t_bwd7 = t_bwd_all = 0.0
+    off7, on7, filters = [], [], []
+    for xy, score in found:
+        pred, dt = timed(lambda xy=xy, score=score: offline(xy, score, 7))
+        off7.append(pred)
+        t_off7 += dt
+        t_off_all += timed(lambda xy=xy, score=score: [offline(xy, score, L) for L in range(2, 8)])[1]
+        f, dt = timed(lambda xy=xy, score=score: est.candidate_filter().run(xy, score))
+        filters.append(f)
+        t_fwd += dt
+        pred, dt = timed(lambda f=f: est.predict(f.smooth(7)))
+        on7.append(pred)
+        t_bwd7 += dt
+        t_bwd_all += timed(lambda f=f: [est.predict(x) for x in f.smooth_prefixes(list(range(2, 8)))])[1]
+    off7, on7 = torch.cat(off7), torch.cat(on7)
 
     def row(label: str, pred: torch.Tensor) -> str:
         s = summarise_by_kind(trajectory_rmse(pred.numpy(), data.positions), data.kind)

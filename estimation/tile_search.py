@@ -14,11 +14,12 @@ to the dense product's up to float32 summation order) for about a twentieth of t
 
 What is left is reading the weights of the tiles scored: one cache line per tile and fingerprint
 entry, scattered over 515 MB, at about the memory's latency each (some 90 ns on our machines).
-Fingerprints of users near one another score the same tiles, so a batch of them is searched
-stage by stage, all its (tile, fingerprint) pairs scored tile by tile: a tile's lines are read
-from memory once and then from cache, about twice as fast overall. Each fingerprint's second
-stage then scores every tile whose bound reaches the ``k``-th best score of its seed tiles (a
-few percent more tiles than raising that score tile by tile would); the result is the same.
+Fingerprints of users near one another, and a user's steps above all, score the same tiles, so
+a batch of them (each thread's share of :data:`_BATCH`) is searched stage by stage, each stage's
+(tile, fingerprint) pairs scored tile by tile: a tile's lines are read from memory once and then
+from cache, about twice as fast overall. A fingerprint's second stage scores every tile whose
+bound reaches the ``k``-th best score of its seed tiles (a few percent more tiles than raising
+that score tile by tile would); the result is the same.
 
 The same bound serves the guided selection of :meth:`FingerprintMatcher.track_candidates
 <estimation.matching.FingerprintMatcher.track_candidates>`: a point's key is its score plus a bonus
@@ -173,65 +174,22 @@ class TileIndex:
             inv2s2 = 0.5 / np.square(np.asarray(guide[1], np.float64))
             bonus = float(guide[2])
         seed = min(self.n_tiles - 1, max(8, 3 * k // TILE_POINTS) if seed is None else max(int(seed), 0))
-        for a in range(0, N, _BATCH):
-            s = slice(a, min(N, a + _BATCH))
-            self.scored += self._topk_batch(
+
+        def run(s: slice) -> int:
+            return _topk_batch(
                 indptr[s.start : s.stop + 1] - indptr[s.start], ones[indptr[s.start] : indptr[s.stop]],
-                k, seed, pred[s], inv2s2[s], bonus, score[s], row[s],
+                self.w, self.c, self.w_max, self.c_max, self.rows, self.xy, self.lo, self.hi, k, seed,
+                pred[s], inv2s2[s], bonus, score[s], row[s],
             )  # fmt: skip
+
+        # the threads' batches in turn, so that at most _BATCH fingerprints' bounds are held
+        parts = [p for a in range(0, N, _BATCH) for p in _shift(pieces(min(_BATCH, N - a), 16), a)]
+        self.scored = int(sum(thread_map(run, parts)))
         return score, row
 
-    def _topk_batch(self, indptr, ones, k, seed, pred, inv2s2, bonus, out_score, out_row) -> int:
-        """:meth:`topk` of one batch of fingerprints into ``out_score``, ``out_row``; returns the
-        tile slots scored."""
-        N, n_tiles = len(indptr) - 1, self.n_tiles
-        by_fp = pieces(N, 16)
-        ub = np.empty((N, n_tiles), np.float32)
-        thread_map(
-            lambda s: _tile_bounds(
-                indptr[s.start : s.stop + 1], ones, self.w_max, self.c_max, self.lo, self.hi,
-                pred[s], inv2s2[s], bonus, seed, ub[s],
-            ),
-            by_fp,
-        )  # fmt: skip
-        heap = (  # each fingerprint's k best so far: keys, scores, grid rows, how many
-            np.empty((N, k), np.float32), np.empty((N, k), np.float32), np.empty((N, k), np.int64),
-            np.zeros(N, np.int64),
-        )  # fmt: skip
-        # the seed tiles, then every other tile that can still enter
-        scored = sum(
-            self._stage(seeds, ub, heap, indptr, ones, pred, inv2s2, bonus) for seeds in (True, False)
-        )
-        hk, hs, hr, size = heap
-        thread_map(lambda s: _heap_sort(hk[s], hs[s], hr[s], size[s], out_score[s], out_row[s]), by_fp)
-        return scored
 
-    def _stage(self, seeds, ub, heap, indptr, ones, pred, inv2s2, bonus) -> int:
-        """Score a batch's seed tiles (``seeds``) or the others whose bound reaches each
-        fingerprint's ``k``-th best key so far, into its heap; returns the tile slots scored."""
-        hk, hs, hr, size = heap
-        N, k = hk.shape
-        tau = np.where(size == k, hk[:, 0], -np.inf).astype(np.float32)
-        count = np.zeros(N, np.int64)
-        _select_tiles(ub, tau, seeds, count, count, count, False)
-        start = np.r_[0, np.cumsum(count)]
-        tile, fp = np.empty(start[-1], np.int64), np.empty(start[-1], np.int64)
-        _select_tiles(ub, tau, seeds, start, tile, fp, True)
-        # Tile by tile: the fingerprints that score one tile read its weights while cached.
-        order = np.argsort(tile, kind="stable")
-        scores = np.empty((len(tile), self.c.shape[1]), np.float32)
-        thread_map(
-            lambda s: _score_pairs(order[s], tile, fp, indptr, ones, self.w, self.c, scores),
-            pieces(len(order), 256),
-        )
-        thread_map(
-            lambda s: _push(
-                start[s.start : s.stop + 1], tile, scores, self.rows, self.xy, pred[s], inv2s2[s],
-                bonus, hk[s], hs[s], hr[s], size[s],
-            ),
-            pieces(N, 16),
-        )  # fmt: skip
-        return scores.size
+def _shift(parts: list[slice], a: int) -> list[slice]:
+    return [slice(p.start + a, p.stop + a) for p in parts]
 
 
 @njit(cache=True, inline="always")
@@ -269,6 +227,39 @@ def _sift_up(hk, hs, hr, i):
             return
         _swap(hk, hs, hr, i, p)
         i = p
+
+
+@njit(cache=True, nogil=True)
+def _topk_batch(
+    indptr, ones, w, c, w_max, c_max, rows, xy, lo, hi, k, seed, pred, inv2s2, bonus, out_score, out_row
+):
+    """TileIndex.topk of a batch of fingerprints: the seed tiles, then every other tile that can
+    still enter, each stage's (tile, fingerprint) pairs scored tile by tile. Returns the tile
+    slots scored."""
+    N, n_tiles, P = len(indptr) - 1, len(c_max), c.shape[1]
+    ub = np.empty((N, n_tiles), np.float32)
+    _tile_bounds(indptr, ones, w_max, c_max, lo, hi, pred, inv2s2, bonus, seed, ub)
+    hk = np.empty((N, k), np.float32)  # each fingerprint's k best so far: keys, scores, rows
+    hs = np.empty((N, k), np.float32)
+    hr = np.empty((N, k), np.int64)
+    size = np.zeros(N, np.int64)
+    tau = np.empty(N, np.float32)
+    start = np.zeros(N + 1, np.int64)
+    scored = 0
+    for stage in range(2):
+        for n in range(N):
+            tau[n] = hk[n, 0] if size[n] == k else -np.inf
+        _select_tiles(ub, tau, stage == 0, start[1:], start, start, False)
+        for n in range(N):
+            start[n + 1] += start[n]
+        tile, fp = np.empty(start[N], np.int64), np.empty(start[N], np.int64)
+        _select_tiles(ub, tau, stage == 0, start, tile, fp, True)
+        scores = np.empty((start[N], P), np.float32)
+        _score_pairs(np.argsort(tile, kind="mergesort"), tile, fp, indptr, ones, w, c, scores)
+        _push(start, tile, scores, rows, xy, pred, inv2s2, bonus, hk, hs, hr, size)
+        scored += start[N] * P
+    _heap_sort(hk, hs, hr, size, out_score, out_row)
+    return scored
 
 
 @njit(cache=True, nogil=True)

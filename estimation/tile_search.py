@@ -183,13 +183,13 @@ class TileIndex:
             )  # fmt: skip
 
         # the threads' batches in turn, so that at most _BATCH fingerprints' bounds are held
-        parts = [p for a in range(0, N, _BATCH) for p in _shift(pieces(min(_BATCH, N - a), 16), a)]
+        parts = [
+            slice(a + p.start, a + p.stop)
+            for a in range(0, N, _BATCH)
+            for p in pieces(min(_BATCH, N - a), 16)
+        ]
         self.scored = int(sum(thread_map(run, parts)))
         return score, row
-
-
-def _shift(parts: list[slice], a: int) -> list[slice]:
-    return [slice(p.start + a, p.stop + a) for p in parts]
 
 
 @njit(cache=True, inline="always")

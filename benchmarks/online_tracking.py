@@ -67,26 +67,26 @@ def main() -> None:
         kxy, post = candidate_features(xy[:, :L], score[:, :L], net.k, motion=net.motion)
         return est.predict((kxy, post, net.smoothed(kxy, post)))
 
-    def timed(fn):
-        t = time.perf_counter()
-        r = fn()
-        return r, time.perf_counter() - t
-
     # Offline and online in turn on each batch, so that both meet the machine in the same state.
-    t_off7 = t_off_all = t_fwd = t_bwd7 = t_bwd_all = 0.0
+    # seconds of: offline 7 steps, offline prefixes, forward filter, online 7 steps, online prefixes
+    seconds = np.zeros(5)
     off7, on7, filters = [], [], []
     for xy, score in found:
-        pred, dt = timed(lambda xy=xy, score=score: offline(xy, score, 7))
-        off7.append(pred)
-        t_off7 += dt
-        t_off_all += timed(lambda xy=xy, score=score: [offline(xy, score, L) for L in range(2, 8)])[1]
-        f, dt = timed(lambda xy=xy, score=score: est.candidate_filter().run(xy, score))
-        filters.append(f)
-        t_fwd += dt
-        pred, dt = timed(lambda f=f: est.predict(f.smooth(7)))
-        on7.append(pred)
-        t_bwd7 += dt
-        t_bwd_all += timed(lambda f=f: [est.predict(x) for x in f.smooth_prefixes(list(range(2, 8)))])[1]
+        marks = [time.perf_counter()]
+        off7.append(offline(xy, score, 7))
+        marks.append(time.perf_counter())
+        for L in range(2, 8):
+            offline(xy, score, L)
+        marks.append(time.perf_counter())
+        filters.append(f := est.candidate_filter().run(xy, score))
+        marks.append(time.perf_counter())
+        on7.append(est.predict(f.smooth(7)))
+        marks.append(time.perf_counter())
+        for x in f.smooth_prefixes(list(range(2, 8))):
+            est.predict(x)
+        marks.append(time.perf_counter())
+        seconds += np.diff(marks)
+    t_off7, t_off_all, t_fwd, t_bwd7, t_bwd_all = seconds
     off7, on7 = torch.cat(off7), torch.cat(on7)
 
     def row(label: str, pred: torch.Tensor) -> str:

@@ -201,9 +201,6 @@ class FingerprintMatcher:
         tiles = self.tile_index()
         ref = [] if refs is None else list(np.asarray(refs, np.float64).transpose(1, 0, 2))
         bonus, spread, per_step = GUIDE
-        if T == 0:
-            refs_out = np.stack(ref, 1) if ref else np.zeros((B, 0, 2))
-            return torch.zeros((B, 0, k, 2)), torch.zeros((B, 0, k)), refs_out
         # Every step's plain top k in one search (a user's steps score the same tiles), then the
         # guided selection where the steps before are needed.
         indptr, ones = self._ones(bits.reshape(B * T, *bits.shape[2:]))
@@ -221,7 +218,8 @@ class FingerprintMatcher:
                 sub = np.repeat(indptr[fp] - sub_ptr[:-1], n_ones) + np.arange(sub_ptr[-1])
                 score[vague, t], rows[vague, t] = tiles.topk(sub_ptr, ones[sub], k, (last + v, s, bonus))
             ref = (ref + [self.grid_xy[rows[:, t, 0]]])[-2:]
-        return torch.from_numpy(self.grid_xy[rows]).float(), torch.from_numpy(score), np.stack(ref, 1)
+        refs_out = np.stack(ref, 1) if ref else np.zeros((B, 0, 2))
+        return torch.from_numpy(self.grid_xy[rows]).float(), torch.from_numpy(score), refs_out
 
     def match(self, bits: torch.Tensor) -> np.ndarray:
         """Best grid point per fingerprint.

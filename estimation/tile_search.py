@@ -244,16 +244,11 @@ def _topk_batch(
     hr = np.empty((N, k), np.int64)
     size = np.zeros(N, np.int64)
     tau = np.empty(N, np.float32)
-    start = np.zeros(N + 1, np.int64)
     scored = 0
     for stage in range(2):
         for n in range(N):
             tau[n] = hk[n, 0] if size[n] == k else -np.inf
-        _select_tiles(ub, tau, stage == 0, start[1:], start, start, False)
-        for n in range(N):
-            start[n + 1] += start[n]
-        tile, fp = np.empty(start[N], np.int64), np.empty(start[N], np.int64)
-        _select_tiles(ub, tau, stage == 0, start, tile, fp, True)
+        start, tile, fp = _select_tiles(ub, tau, stage == 0)
         scores = np.empty((start[N], P), np.float32)
         _score_pairs(np.argsort(tile, kind="mergesort"), tile, fp, indptr, ones, w, c, scores)
         _push(start, tile, scores, rows, xy, pred, inv2s2, bonus, hk, hs, hr, size)
@@ -287,25 +282,33 @@ def _tile_bounds(indptr, ones, w_max, c_max, lo, hi, pred, inv2s2, bonus, seed, 
                 u[b] = np.inf
 
 
+@njit(cache=True, inline="always")
+def _takes(u, tau, seeds):
+    # a seed tile (its bound set to +inf), or another whose bound reaches the k-th best key tau
+    if seeds:
+        return u == np.inf
+    return u != np.inf and not u + _SLACK * (1.0 + abs(u)) < tau
+
+
 @njit(cache=True, nogil=True)
-def _select_tiles(ub, tau, seeds, start, tile, fp, fill):
-    # The (tile, fingerprint) pairs to score: the seeds, or the other tiles whose bound reaches
-    # the fingerprint's k-th best key tau. Without fill, only their number per fingerprint
-    # (into start).
-    for n in range(ub.shape[0]):
-        j = start[n] if fill else 0
-        for b in range(ub.shape[1]):
-            u = ub[n, b]
-            if seeds:
-                take = u == np.inf
-            else:
-                take = u != np.inf and not u + _SLACK * (1.0 + abs(u)) < tau[n]
-            if take:
-                if fill:
-                    tile[j], fp[j] = b, n
+def _select_tiles(ub, tau, seeds):
+    # The (tile, fingerprint) pairs to score, fingerprint by fingerprint: fingerprint n's are
+    # tile[start[n]:start[n + 1]].
+    N, n_tiles = ub.shape
+    start = np.zeros(N + 1, np.int64)
+    for n in range(N):
+        j = 0
+        for b in range(n_tiles):
+            j += _takes(ub[n, b], tau[n], seeds)
+        start[n + 1] = start[n] + j
+    tile, fp = np.empty(start[N], np.int64), np.empty(start[N], np.int64)
+    for n in range(N):
+        j = start[n]
+        for b in range(n_tiles):
+            if _takes(ub[n, b], tau[n], seeds):
+                tile[j], fp[j] = b, n
                 j += 1
-        if not fill:
-            start[n] = j
+    return start, tile, fp
 
 
 @njit(cache=True, nogil=True)

@@ -123,6 +123,73 @@ def test_the_pass_is_the_exact_posterior_over_arc_and_speed(S, V, d):
     assert not route._forward_backward(lik, np.full((1, T - 1), -9), prior, change)[1][0]
 
 
+@pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6]), (4, 6, [2])])
+def test_the_pass_of_speeds_of_their_own_is_the_exact_posterior(S, V, d):
+    # every path enumerated: its first speed drawn from the prior, then at each step kept, or
+    # changed by one of the differences, or drawn again; a path that leaves the window is none
+    rng = np.random.default_rng(3)
+    T, change, redraw = len(d) + 1, 0.3, 0.4
+    lik, prior, d = rng.random((1, T, S)), rng.dirichlet(np.ones(V)), np.array([d])
+    deltas, prob = np.array([-2, 1, 3]), np.array([0.5, 0.3, 0.2])
+    post = np.zeros((T, S))
+    for i0 in range(S):
+        for js in itertools.product(range(V), repeat=T - 1):  # the speed of each move
+            p, i = prior[js[0]] * lik[0, 0, i0], [i0]
+            for t in range(T - 1):
+                i.append(i[-1] + js[t] - d[0, t])
+                p *= lik[0, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
+                if t < T - 2:
+                    moved = sum(q for k, q in zip(deltas, prob, strict=True) if js[t + 1] == js[t] + k)
+                    p *= (1 - change) * (js[t + 1] == js[t]) + change * (
+                        (1 - redraw) * moved + redraw * prior[js[t + 1]]
+                    )
+            if p > 0:
+                post[np.arange(T), i] += p
+    got, alive, evidence = route._forward_backward_changes(lik, d, prior, change, deltas, prob, redraw)
+    assert alive[0]
+    np.testing.assert_allclose(got[0], post / post.sum(1, keepdims=True), rtol=1e-12)
+    np.testing.assert_allclose(np.exp(evidence[0]), post[0].sum(), rtol=1e-12)
+    # every change a draw: the measured speeds' pass
+    for a, b in zip(
+        route._forward_backward_changes(lik, d, prior, change, deltas, prob, 1.0),
+        route._forward_backward(lik, d, prior, change),
+        strict=True,
+    ):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+
+
+def test_speed_changes_are_the_differences_between_measured_speeds():
+    speeds = _speeds(5.3) + 2 * _speeds(8.3) + _speeds(11.3)
+    deltas, prob = route.speed_changes(speeds)
+    assert 0 not in deltas and prob.sum() == pytest.approx(1.0)
+    by = dict(zip(deltas.tolist(), prob, strict=True))
+    # two distinct speeds drawn (probability 10 / 16): 3 m apart with 4 / 16 each way, 6 m with 1 / 16
+    assert by[3 * ROUTE_BINS] == pytest.approx(by[-3 * ROUTE_BINS]) == pytest.approx(0.4)
+    assert by[6 * ROUTE_BINS] == pytest.approx(by[-6 * ROUTE_BINS]) == pytest.approx(0.1)
+    assert len(route.speed_changes(_speeds(8.3))[0]) == 0  # one speed kept: no change to measure
+
+
+def test_a_driver_at_a_speed_of_its_own_changes_it_as_the_training_drivers_do(monkeypatch):
+    # the training drivers kept 5.3 or 8.3 m per step and changed by 3 m; a driver at 7 m per
+    # step who slows to 4 is read better knowing how drivers change speed than with any change
+    # as likely as any other (fingerprints that tell little leave it to motion)
+    s = 20.0 + np.r_[0.0, np.cumsum([7.0, 7.0, 7.0, 4.0, 4.0, 4.0])]
+    true = _along_l(s[None] + np.linspace(0.0, 1.0, 9)[:, None])
+    xy, _, cells = _candidates(true)
+    lp = -0.5 * ((xy - true[..., None, :]) ** 2).sum(-1)
+    net = StreetNetwork.from_segments(L_STREETS)
+    speeds = _speeds(5.3, 170) + _speeds(8.3, 170)
+
+    def error() -> float:
+        track, on = route_track(cells, xy, lp, net, speeds, 0.2, 1.0, 3.0)
+        assert on.all()
+        return float(np.linalg.norm(track - true, axis=-1).mean())
+
+    changed = error()
+    monkeypatch.setattr(route, "ROUTE_REDRAW", 1.0)
+    assert changed < 0.8 * error()
+
+
 def test_users_off_the_streets_or_slow_are_left_alone():
     net = StreetNetwork.from_segments(L_STREETS)
     off = _drive(np.array([20.0]), 8.3) + np.array([0.0, 10.0])  # 10 m from the street

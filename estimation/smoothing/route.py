@@ -10,8 +10,8 @@ forward-backward pass over (arc length, speed) on a fine grid along that route: 
 kept from step to step or, with the measured probability of a change, drawn again from the
 measured speeds; each step weighs its arc lengths by the fingerprint likelihood of the candidate
 grid point there. The track is the posterior mean position at every step, mixed per user with
-the pass under a flat density of speeds by how well each explains its steps (drivers who keep
-speeds of their own). Routes turn back at dead ends, as the street network's drivers do there. A
+the pass of drivers who keep speeds of their own (any speed at first, changed by the
+differences between the measured speeds) by how well each explains its steps. Routes turn back at dead ends, as the street network's drivers do there. A
 track that keeps to one side of its route's centre line is a driver in a lane: it is smoothed
 along lines beside the centre line, as far to that side as the track and nearer and farther,
 each weighed by how well it explains the steps.
@@ -29,7 +29,7 @@ from mmwsim._threads import batch_map
 if TYPE_CHECKING:
     from mmwsim.trajectories import StreetNetwork
 
-__all__ = ["ROUTE_BINS", "route_track", "street_routes"]
+__all__ = ["ROUTE_BINS", "route_track", "speed_changes", "street_routes"]
 
 ROUTE_BINS = 20
 """Bins of the arc length (and of the speed per step) per grid spacing: 5 cm on a 1 m grid."""
@@ -55,10 +55,25 @@ ROUTE_FASTER = 1.5
 """The speeds the pass weighs reach this many times the fastest measured one."""
 ROUTE_OTHER = 0.2
 """Prior probability that a user drives at speeds of its own: each user's track is the posterior
-over the measured speeds and over a flat density of speeds, weighed by how well each explains
-its steps (measured with the second version's chord speeds and flat share of 0.1: our own
-vehicles at 7.5 and 9.5 m/s instead of 8.3 0.2948 and 0.2782 m without, 0.2867 and 0.2455 m with;
-ours at their own speeds 0.1215 and 0.1225 m on the seen area)."""
+over the measured speeds and over speeds of its own (:data:`ROUTE_REDRAW`), weighed by how well
+each explains its steps (measured with the second version's chord speeds and flat share of 0.1:
+our own vehicles at 7.5 and 9.5 m/s instead of 8.3 0.2948 and 0.2782 m without, 0.2867 and
+0.2455 m with; ours at their own speeds 0.1215 and 0.1225 m on the seen area)."""
+ROUTE_REDRAW = 0.3
+"""Share of the speed changes of a driver at speeds of its own that draw any speed (a stop, a
+start, a change unlike the training drivers'); the others change its speed by a difference
+between two measured speeds (:func:`speed_changes`), as the training drivers change theirs. Our
+street vehicles at 6 / 7.5 / 9.5 / 12 m/s instead of 8.3 (`benchmarks/foreign_motion.py`'s, 500
+each, 6 dB) on an 8-minute `default.zarr` network: 0.324 / 0.271 / 0.236 / 0.306 m with any speed
+drawn at every change (share 1), 0.310 / 0.245 / 0.203 / 0.284 m with this share (0.1 and 0.5
+within 0.003 m); our own vehicles 0.096 m (held out 0.118 m) either way. On the demo's model (2 m
+grid, 300 each): 0.587 / 0.538 / 0.424 / 0.504 m against 0.560 / 0.513 / 0.393 / 0.471 m, our
+own 0.163 / 0.164 m (held out 0.196 / 0.200 m)."""
+ROUTE_CHANGES = 0.2
+"""Speed differences less likely than this share of the likeliest are left to
+:data:`ROUTE_REDRAW`'s draws. Our drivers change by 3 m/s at a time: at 0.2 those two differences
+are kept (of the 10 above 0.01 and 140 above 0.001, which track alike to 0.004 m on the demo)
+and the pass costs 0.38 s per 1000 sequences on `default.zarr`, against 0.58 s for the ten."""
 ROUTE_DETOUR = 60.0
 """Metres: the longest way between two streets a track passes that the route fills in."""
 ROUTE_GATE = 4.0
@@ -461,6 +476,141 @@ def _forward_backward(
     return post, alive, evidence
 
 
+def speed_changes(speeds: np.ndarray, rel: float = ROUTE_CHANGES) -> tuple[np.ndarray, np.ndarray]:
+    """The speed changes of the training drivers, for a driver at speeds of its own: the
+    differences between two speeds drawn from ``speeds (V,)`` (probabilities of ``j`` arc bins per
+    step), those as likely as ``rel`` times the likeliest.
+
+    Returns
+    -------
+    deltas : (D,) int64
+        Changes in arc bins per step (never 0); none where all measured drivers kept one speed.
+    prob : (D,) float64
+        Their probabilities, summing to 1.
+    """
+    p = np.asarray(speeds, dtype=np.float64)
+    p = p / p.sum()
+    diff = np.correlate(p, p, "full")  # diff[V - 1 + k]: probability that two speeds differ by k
+    diff[len(p) - 1] = 0.0  # a change changes
+    if not diff.max() > 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    keep = np.flatnonzero(diff >= rel * diff.max())
+    return (keep - (len(p) - 1)).astype(np.int64), diff[keep] / diff[keep].sum()
+
+
+@numba.njit(cache=True, nogil=True)
+def _forward_backward_changes(
+    lik: np.ndarray,
+    d: np.ndarray,
+    prior: np.ndarray,
+    change: float,
+    deltas: np.ndarray,
+    prob: np.ndarray,
+    redraw: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """:func:`_forward_backward` of a driver whose speed, where it changes, moves by ``deltas
+    (D,)`` bins with probabilities ``(1 - redraw) prob (D,)`` or is drawn again from ``prior``
+    with probability ``redraw``: speeds of its own, changed as the training drivers change
+    theirs. The first speed is drawn from ``prior``.
+
+    A change from speed ``w`` reaches other speeds than one from ``w'``, so this pass carries
+    every (speed, bin) pair of the window's reachable speeds (``S`` bins by about ``2 S`` speeds
+    per step, each touching ``D + 2`` others), not the redrawn column and contiguous rows that
+    make :func:`_forward_backward` cheap; it runs for the drivers at speeds of their own only."""
+    n, T, S = lik.shape
+    V, D = len(prior), len(deltas)
+    post = np.zeros((n, T, S))
+    alive = np.ones(n, dtype=np.bool_)
+    evidence = np.zeros(n)
+    first = np.empty(S)
+    anyw = np.empty(S)  # the mass over all speeds at each bin (the redraws' source)
+    came = np.empty(S)
+    lo = np.empty(n, dtype=np.int64)  # each user's slowest reachable speed, bins per step
+    ws = np.empty(n, dtype=np.int64)  # and how many speeds from it are reachable
+    for u in range(n):
+        lo_d, hi_d = d[u, 0], d[u, 0]
+        for t in range(1, T - 1):
+            lo_d, hi_d = min(lo_d, d[u, t]), max(hi_d, d[u, t])
+        lo[u] = max(0, lo_d - (S - 1))
+        ws[u] = max(min(V - 1, hi_d + (S - 1)) - lo[u] + 1, 0)
+    # alpha[t, w, i]: at bin i of step t's window, having moved jlo + w bins from step t - 1
+    alpha_all = np.empty((T, max(ws.max(), 1), S))
+    for u in range(n):
+        jlo, W = lo[u], ws[u]
+        alpha = alpha_all[:, :W]
+        tot = 0.0
+        for i in range(S):
+            first[i] = lik[u, 0, i]
+            tot += first[i]
+        if tot <= 0.0 or W == 0:
+            alive[u] = False
+            continue
+        evidence[u] += np.log(tot)
+        first /= tot
+        for t in range(1, T):
+            if t > 1:
+                anyw[:] = 0.0
+                for w in range(W):
+                    anyw += alpha[t - 1, w]
+            alpha[t] = 0.0
+            tot = 0.0
+            for w in range(W):
+                # the mass arriving at speed w, per bin of step t - 1, whole rows at a time
+                if t == 1:
+                    came[:] = prior[jlo + w] * first
+                else:
+                    came[:] = (1.0 - change) * alpha[t - 1, w] + change * redraw * prior[jlo + w] * anyw
+                    for k in range(D):
+                        was = w - deltas[k]
+                        if 0 <= was < W:
+                            came += change * (1.0 - redraw) * prob[k] * alpha[t - 1, was]
+                shift = jlo + w - d[u, t - 1]
+                for i in range(max(0, shift), min(S, S + shift)):
+                    a = came[i - shift] * lik[u, t, i]
+                    alpha[t, w, i] = a
+                    tot += a
+            if tot <= 0.0:
+                alive[u] = False
+                break
+            evidence[u] += np.log(tot)
+            alpha[t] /= tot
+        if not alive[u]:
+            continue
+        # beta[w, i]: the later steps' likelihood after bin i of step t, having moved jlo + w bins
+        beta = np.ones((W, S))
+        ahead = np.zeros((W, S))  # the next step's likelihood times beta, per speed moved into it
+        redrawn = np.empty(S)
+        for t in range(T - 1, 0, -1):
+            for w in range(W):
+                for i in range(S):
+                    post[u, t, i] += alpha[t, w, i] * beta[w, i]
+            for w in range(W):
+                shift = jlo + w - d[u, t - 1]
+                ahead[w] = 0.0
+                for i in range(max(0, -shift), min(S, S - shift)):
+                    ahead[w, i] = lik[u, t, i + shift] * beta[w, i + shift]
+            if t == 1:
+                break
+            redrawn[:] = 0.0
+            for w in range(W):
+                redrawn += prior[jlo + w] * ahead[w]
+            for w in range(W):
+                beta[w] = (1.0 - change) * ahead[w] + change * redraw * redrawn
+                for k in range(D):
+                    to = w + deltas[k]
+                    if 0 <= to < W:
+                        beta[w] += change * (1.0 - redraw) * prob[k] * ahead[to]
+            beta /= max(beta.max(), 1e-300)
+        for w in range(W):  # the first step: its speed drawn from the prior
+            for i in range(S):
+                post[u, 0, i] += prior[jlo + w] * ahead[w, i]
+        for i in range(S):
+            post[u, 0, i] *= first[i]
+        for t in range(T):
+            post[u, t] /= max(post[u, t].sum(), 1e-300)
+    return post, alive, evidence
+
+
 def route_track(
     tracked: np.ndarray,
     xy: np.ndarray,
@@ -509,6 +659,7 @@ def route_track(
     prior = np.asarray(speeds, dtype=np.float64)
     prior = np.r_[prior / prior.sum(), np.zeros(int(round((ROUTE_FASTER - 1) * len(prior))))]
     flat = np.full(len(prior), 1.0 / len(prior))
+    deltas, prob = speed_changes(prior)
     prior = (1 - ROUTE_FLOOR) * prior + ROUTE_FLOOR * flat
     steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)
     typical = np.median(steps, axis=1)
@@ -529,7 +680,7 @@ def route_track(
             lines.append((b, line, _arc_of(line, tracked[b], step)[0] if shift else arc))
     offsets = np.arange(-half, half + 1) * h
     user = np.array([b for b, _, _ in lines], dtype=np.int64)
-    tracks = np.zeros((len(lines), 2, T, 2))  # per line: under the measured speeds and the flat ones
+    tracks = np.zeros((len(lines), 2, T, 2))  # per line: under the measured speeds and speeds of its own
     logw = np.full((len(lines), 2), -np.inf)
     for c in range(0, len(lines), _CHUNK):
         part = lines[c : c + _CHUNK]
@@ -540,8 +691,14 @@ def route_track(
         top = ll.max(2, keepdims=True)
         lik = np.exp(ll - top)
         d = np.rint(np.diff(centre, axis=1) / h).astype(np.int64)
-        for m, (motion, share) in enumerate(((prior, 1 - ROUTE_OTHER), (flat, ROUTE_OTHER))):
-            post, alive, ev = batch_map(_forward_backward, 2, lik, d, motion, change)
+        for m, share in enumerate((1 - ROUTE_OTHER, ROUTE_OTHER)):
+            if m == 0:
+                post, alive, ev = batch_map(_forward_backward, 2, lik, d, prior, change)
+            else:
+                redraw = ROUTE_REDRAW if len(deltas) else 1.0
+                post, alive, ev = batch_map(
+                    _forward_backward_changes, 2, lik, d, flat, change, deltas, prob, redraw
+                )
             tracks[c : c + len(part), m] = (post[..., None] * pos).sum(2)
             # every line of a user on one scale: each step's window's top put back
             logw[c : c + len(part), m] = np.where(alive, ev + top[..., 0].sum(1) + np.log(share), -np.inf)

@@ -237,6 +237,23 @@ def test_drivers_in_a_lane_beside_the_centre_line_are_smoothed_along_it(left):
     assert np.linalg.norm(track - true, axis=-1).mean() < 0.8 * before
 
 
+def test_a_lane_less_than_half_a_grid_spacing_off_the_centre_line_is_kept():
+    # a 2 m grid, a driver 0.8 m left of the centre line (0.4 spacings): its track keeps to that
+    # side, and the lines beside the centre line are weighed, not the centre line alone
+    x = 10.3 + 8.3 * np.arange(7)
+    true = np.stack([x, np.full(7, 0.8)], -1)[None]
+    g = 2.0 * np.arange(-3, 4)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2) + 2.0 * np.rint(
+        true[..., None, :] / 2.0
+    )
+    lp = -0.5 * ((xy - true[..., None, :]) ** 2).sum(-1)
+    net = StreetNetwork.from_segments(L_STREETS)
+    track, on = route_track(true, xy, lp, net, _speeds(8.3, 170), 0.05, 2.0, 5.0)
+    assert on.all()
+    # within a row every line reads alike: the track lies among them, not on the centre line
+    assert (track[0, :, 1] > 0.3).all() and np.abs(track[0, :, 1] - 0.8).mean() < 0.5
+
+
 def test_a_lane_is_mitred_at_corners_and_crosses_over_where_its_route_turns_back():
     r = np.array([[-20.0, 0.0], [0.0, 0.0], [60.0, 0.0], [60.0, 60.0], [60.0, 80.0], [60.0, 60.0]])
     left = route._offset(r, 1.0)
@@ -300,7 +317,10 @@ def test_a_street_halfway_between_grid_rows_reads_the_likelier_row():
     cells = np.take_along_axis(xy, lp.argmax(-1)[..., None, None], 2)[:, :, 0]
     net = StreetNetwork.from_segments(np.array([[[0.0, 1.0], [100.0, 1.0]], [[100.0, 1.0], [200.0, 1.0]]]))
     speeds = np.ones(150)  # any speed up to 15 m per step, changed at every other step
-    track, on = route_track(cells, xy, lp, net, speeds, 0.5, 2.0, 5.0)
+    # the smoother's track of such a driver lies on the street (the map's lanes pull it there);
+    # a track on a row 1 m off, half a spacing, would read as a driver in a lane beside it
+    tracked = np.stack([cells[..., 0], np.ones_like(cells[..., 1])], -1)
+    track, on = route_track(tracked, xy, lp, net, speeds, 0.5, 2.0, 5.0)
     assert on.all()
     assert np.abs(track[..., 1] - 1.0).max() < 1e-9
     assert np.abs(track[..., 0] - x).mean() < 0.5 * np.abs(cells[..., 0] - x).mean()

@@ -11,8 +11,8 @@ kept from step to step or, with the measured probability of a change, drawn agai
 measured speeds; each step weighs its arc lengths by the fingerprint likelihood of the candidate
 grid point there. The track is the posterior mean position at every step, mixed per user with
 the pass of drivers who keep speeds of their own (any speed at first, changed by the
-differences between the measured speeds) by how well each explains its steps. Routes turn back at dead ends, as the street network's drivers do there. A
-track that keeps to one side of its route's centre line is a driver in a lane: it is smoothed
+differences between the measured speeds) by how well each explains its steps. Routes turn back
+at dead ends, as the street network's drivers do there. A track that keeps to one side of its route's centre line is a driver in a lane: it is smoothed
 along lines beside the centre line, as far to that side as the track and nearer and farther,
 each weighed by how well it explains the steps.
 """
@@ -72,8 +72,7 @@ own 0.163 / 0.164 m (held out 0.196 / 0.200 m)."""
 ROUTE_CHANGES = 0.2
 """Speed differences less likely than this share of the likeliest are left to
 :data:`ROUTE_REDRAW`'s draws. Our drivers change by 3 m/s at a time: at 0.2 those two differences
-are kept (of the 10 above 0.01 and 140 above 0.001, which track alike to 0.004 m on the demo)
-and the pass costs 0.38 s per 1000 sequences on `default.zarr`, against 0.58 s for the ten."""
+are kept (of the 10 above 0.01, which track alike to 0.004 m on the demo) and the pass costs 0.38 s per 1000 sequences on `default.zarr`, against 0.58 s for the ten."""
 ROUTE_DETOUR = 60.0
 """Metres: the longest way between two streets a track passes that the route fills in."""
 ROUTE_GATE = 4.0
@@ -482,10 +481,10 @@ def _forward_backward(
     return post, alive, evidence
 
 
-def speed_changes(speeds: np.ndarray, rel: float = ROUTE_CHANGES) -> tuple[np.ndarray, np.ndarray]:
+def speed_changes(speeds: np.ndarray, rel: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The speed changes of the training drivers, for a driver at speeds of its own: the
     differences between two speeds drawn from ``speeds (V,)`` (probabilities of ``j`` arc bins per
-    step), those as likely as ``rel`` times the likeliest.
+    step), those as likely as ``rel`` (default :data:`ROUTE_CHANGES`) times the likeliest.
 
     Returns
     -------
@@ -500,7 +499,7 @@ def speed_changes(speeds: np.ndarray, rel: float = ROUTE_CHANGES) -> tuple[np.nd
     diff[len(p) - 1] = 0.0  # a change changes
     if not diff.max() > 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
-    keep = np.flatnonzero(diff >= rel * diff.max())
+    keep = np.flatnonzero(diff >= (ROUTE_CHANGES if rel is None else rel) * diff.max())
     return (keep - (len(p) - 1)).astype(np.int64), diff[keep] / diff[keep].sum()
 
 
@@ -539,11 +538,16 @@ def _forward_backward_changes(
             lo_d, hi_d = min(lo_d, d[u, t]), max(hi_d, d[u, t])
         lo[u] = max(0, lo_d - (S - 1))
         ws[u] = max(min(V - 1, hi_d + (S - 1)) - lo[u] + 1, 0)
-    # alpha[t, w, i]: at bin i of step t's window, having moved jlo + w bins from step t - 1
+    # alpha[t, w, i]: at bin i of step t's window, having moved jlo + w bins from step t - 1;
+    # beta[w, i]: the later steps' likelihood after bin i of step t, having moved jlo + w bins;
+    # ahead[w, i]: the next step's likelihood times beta, per speed moved into it
     alpha_all = np.empty((T, max(ws.max(), 1), S))
+    beta_all = np.empty((max(ws.max(), 1), S))
+    ahead_all = np.empty((max(ws.max(), 1), S))
+    redrawn = np.empty(S)
     for u in range(n):
         jlo, W = lo[u], ws[u]
-        alpha = alpha_all[:, :W]
+        alpha, beta, ahead = alpha_all[:, :W], beta_all[:W], ahead_all[:W]
         tot = 0.0
         for i in range(S):
             first[i] = lik[u, 0, i]
@@ -582,10 +586,7 @@ def _forward_backward_changes(
             alpha[t] /= tot
         if not alive[u]:
             continue
-        # beta[w, i]: the later steps' likelihood after bin i of step t, having moved jlo + w bins
-        beta = np.ones((W, S))
-        ahead = np.zeros((W, S))  # the next step's likelihood times beta, per speed moved into it
-        redrawn = np.empty(S)
+        beta[:] = 1.0
         for t in range(T - 1, 0, -1):
             for w in range(W):
                 for i in range(S):
@@ -666,7 +667,12 @@ def route_track(
     prior = np.r_[prior / prior.sum(), np.zeros(int(round((ROUTE_FASTER - 1) * len(prior))))]
     flat = np.full(len(prior), 1.0 / len(prior))
     deltas, prob = speed_changes(prior)
+    redraw = ROUTE_REDRAW if len(deltas) else 1.0  # no measured change: every change a draw
     prior = (1 - ROUTE_FLOOR) * prior + ROUTE_FLOOR * flat
+    passes = (  # (kernel, its motion arguments, prior share): measured speeds, speeds of its own
+        (_forward_backward, (prior, change), 1 - ROUTE_OTHER),
+        (_forward_backward_changes, (flat, change, deltas, prob, redraw), ROUTE_OTHER),
+    )
     steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)
     typical = np.median(steps, axis=1)
     fast = np.flatnonzero(typical > min_speed)
@@ -697,14 +703,8 @@ def route_track(
         top = ll.max(2, keepdims=True)
         lik = np.exp(ll - top)
         d = np.rint(np.diff(centre, axis=1) / h).astype(np.int64)
-        for m, share in enumerate((1 - ROUTE_OTHER, ROUTE_OTHER)):
-            if m == 0:
-                post, alive, ev = batch_map(_forward_backward, 2, lik, d, prior, change)
-            else:
-                redraw = ROUTE_REDRAW if len(deltas) else 1.0
-                post, alive, ev = batch_map(
-                    _forward_backward_changes, 2, lik, d, flat, change, deltas, prob, redraw
-                )
+        for m, (kernel, motion, share) in enumerate(passes):
+            post, alive, ev = batch_map(kernel, 2, lik, d, *motion)
             tracks[c : c + len(part), m] = (post[..., None] * pos).sum(2)
             # every line of a user on one scale: each step's window's top put back
             logw[c : c + len(part), m] = np.where(alive, ev + top[..., 0].sum(1) + np.log(share), -np.inf)

@@ -73,7 +73,7 @@ def main() -> None:
     # Offline and online in turn on each batch, so that both meet the machine in the same state.
     # seconds of: offline 7 steps, offline prefixes, forward filter, online 7 steps, online prefixes
     seconds = np.zeros(5)
-    off7, on7, filters = [], [], []
+    off7, on7, now = [], [], []
     for xy, score in found:
         marks = [time.perf_counter()]
         off7.append(offline(xy, score, 7))
@@ -81,7 +81,7 @@ def main() -> None:
         for L in range(2, 8):
             offline(xy, score, L)
         marks.append(time.perf_counter())
-        filters.append(f := est.candidate_filter().run(xy, score))
+        f = est.candidate_filter().run(xy, score)
         marks.append(time.perf_counter())
         on7.append(est.predict(f.smooth(7)))
         marks.append(time.perf_counter())
@@ -89,6 +89,9 @@ def main() -> None:
             est.predict(x)
         marks.append(time.perf_counter())
         seconds += np.diff(marks)
+        # as evaluation does, only one batch's filter is held (its stored messages let go)
+        now.append(f.positions[-1])
+        del f
     t_off7, t_off_all, t_fwd, t_bwd7, t_bwd_all = seconds
     off7, on7 = torch.cat(off7), torch.cat(on7)
 
@@ -143,7 +146,7 @@ def main() -> None:
             f" ({min(n, LATENCY_USERS)} users x 7 steps); a new tracker {np.median(made) * 1e3:.1f} ms"
         )
     est.route_tracking = True
-    now = np.concatenate([f.positions[-1] for f in filters])
+    now = np.concatenate(now)
     err_now = np.linalg.norm(now - data.positions[:, -1], axis=-1).mean()
     err_last = np.linalg.norm(on7[:, -1].numpy() - data.positions[:, -1], axis=-1).mean()
     print(f"current position (filtered last step) {err_now:.3f} m; the network's last step {err_last:.3f} m")

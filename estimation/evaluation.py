@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -29,6 +29,7 @@ from .training import read_run_info
 
 if TYPE_CHECKING:
     from .oracle import OracleMethod
+    from .smoothing.online import CandidateFilter
 
 __all__ = [
     "Evaluation",
@@ -61,29 +62,40 @@ def _per_prefix(
 def _shared_prefixes(
     bits: torch.Tensor,
     lengths: list[int],
-    per_step: Callable[[torch.Tensor], list[Any]],
+    per_step: Callable[[torch.Tensor], Iterable[Any]],
     smooth: Callable[[Any, list[int]], list[Any]],
     finish: Callable[[Any, int], np.ndarray],
 ) -> dict[int, tuple[np.ndarray, float]]:
     """:func:`_per_prefix` for per-step work split in parts (batches) whose prefixes share work:
     ``smooth(part, lengths)`` gives what ``finish(x, L)`` reads for each length, from the first
     ``L`` steps only; each length is charged its share of the per-step time, its share (by its
-    number of steps) of the shared time, and its own ``finish``."""
+    number of steps) of the shared time, and its own ``finish``.
+
+    ``per_step`` may give its parts one at a time (a generator): each is smoothed and let go
+    before the next is made, so that only one part's state (a candidate filter's stored
+    messages, about 54 kB per user and step) is held at once."""
     Lmax = max(lengths)
-    t0 = time.perf_counter()
-    parts = per_step(bits[:, :Lmax])
-    step_seconds = (time.perf_counter() - t0) / Lmax
     preds: dict[int, list[np.ndarray]] = {L: [] for L in lengths}
-    seconds = {L: step_seconds * L for L in lengths}
-    for part in parts:
+    seconds = dict.fromkeys(lengths, 0.0)
+    parts = iter(per_step(bits[:, :Lmax]))
+    while True:
+        t0 = time.perf_counter()
+        part = next(parts, _DONE)
+        if part is _DONE:
+            break
+        step_seconds = (time.perf_counter() - t0) / Lmax
         t1 = time.perf_counter()
         shared = smooth(part, lengths)
+        del part
         per_step_shared = (time.perf_counter() - t1) / sum(lengths)
         for L, x in zip(lengths, shared, strict=True):
             t2 = time.perf_counter()
             preds[L].append(finish(x, L))
-            seconds[L] += per_step_shared * L + time.perf_counter() - t2
+            seconds[L] += (step_seconds + per_step_shared) * L + time.perf_counter() - t2
     return {L: (np.concatenate(preds[L]), seconds[L]) for L in lengths}
+
+
+_DONE = object()
 
 
 class NetworkMethod:
@@ -147,9 +159,9 @@ class NetworkMethod:
         if not self.est.uses_grid:
             return _per_prefix(bits, lengths, lambda b: b, lambda b, L: self._predict(b[:, :L].float()))
 
-        def forward(b: torch.Tensor) -> list:
-            parts = (self.est.search(b[k : k + _BATCH].float()) for k in range(0, len(b), _BATCH))
-            return [self.est.candidate_filter().run(*found) for found in parts]
+        def forward(b: torch.Tensor) -> Iterator[CandidateFilter]:
+            for k in range(0, len(b), _BATCH):
+                yield self.est.candidate_filter().run(*self.est.search(b[k : k + _BATCH].float()))
 
         return _shared_prefixes(
             bits,

@@ -156,6 +156,35 @@ def test_a_forward_step_keeps_the_pairs_and_messages_a_log_domain_step_keeps(mot
     assert np.allclose(np.exp(marg).sum(1), 1.0)
 
 
+def test_the_filter_stores_its_pairs_in_two_byte_indices_and_refuses_more_candidates():
+    """A filter keeps every step's kept pairs until its backward passes (a batch of 512 users,
+    four motion models: hundreds of megabytes at seven steps), so their candidate indices are
+    int16; a beam over more candidates than those index is refused, not wrapped around."""
+    from estimation.smoothing.beam import MAX_CANDIDATES, pair_start
+
+    xy, score = _candidates(B=2, T=3, S=8, seed=3)
+    f = CandidateFilter(MOTION, None, 1.0, k=8, beam=16, vague_gate=None).run(xy, score)
+    for stack in f.cells._pairs[:2]:
+        assert stack.upto(2).dtype == np.int16
+    with pytest.raises(ValueError, match="at most 32767"):
+        CandidateFilter(MOTION, None, 1.0, k=MAX_CANDIDATES + 1)
+    with pytest.raises(ValueError, match="at most"):
+        CandidateFilter(MOTION, None, 1.0, fine_k=4000, n_sub=3)
+    m = motion_arrays(MOTION)
+    x1 = np.zeros((1, MAX_CANDIDATES + 1, 2))
+    with pytest.raises(ValueError, match="MAX_CANDIDATES"):
+        pair_start(
+            x1[:, :1],
+            x1,
+            np.zeros((1, 1)),
+            np.zeros((1, MAX_CANDIDATES + 1)),
+            4,
+            m.step_table,
+            m.bin,
+            m.place,
+        )
+
+
 @pytest.mark.parametrize("place", [False, True], ids=["motion", "with-place"])
 def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
     tr = toy_sequence_set(64, 6, seed=0)

@@ -30,7 +30,9 @@ from .._stamps import same_stamp, stamp
 from .motion import MixtureMotion, MotionTable
 
 __all__ = [
+    "MAX_CANDIDATES",
     "MotionArrays",
+    "PAIR_INDEX",
     "beam_smooth",
     "motion_arrays",
     "pair_forward",
@@ -47,6 +49,11 @@ _NEGLIGIBLE = -40.0
 # Products of probabilities below this have lost precision to underflow (1e-308 is the smallest
 # normal float64).
 _TINY = 1e-290
+# The kept pairs' candidate indices, stored for every step of every user until its backward
+# passes: half the bytes of int64 indices (a filter's stored state is mostly these and the
+# messages, and touching fresh memory is much of a forward step's cost).
+PAIR_INDEX = np.int16
+MAX_CANDIDATES = int(np.iinfo(PAIR_INDEX).max)
 
 
 class MotionArrays(NamedTuple):
@@ -423,13 +430,15 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
 
     Returns
     -------
-    pi, ci : (B, M) int64; indices of the pairs' candidates at steps 0 and 1
+    pi, ci : (B, M) :data:`PAIR_INDEX`; indices of the pairs' candidates at steps 0 and 1
     la : (B, M) float64; forward log messages (``_NEG`` past the kept pairs)
     marg : (B, K1) float64; filtered log marginal of step 1
     """
     B, K0, K1 = x0.shape[0], x0.shape[1], x1.shape[1]
-    pi = np.empty((B, M), np.int64)
-    ci = np.empty((B, M), np.int64)
+    if max(K0, K1) > MAX_CANDIDATES:
+        raise ValueError("a beam step holds at most MAX_CANDIDATES candidates")
+    pi = np.empty((B, M), PAIR_INDEX)
+    ci = np.empty((B, M), PAIR_INDEX)
     la = np.empty((B, M))
     marg = np.empty((B, K1))
     dense = np.empty((K0, K1))
@@ -471,9 +480,11 @@ def pair_forward(
     pi, ci, la, marg : as :func:`pair_start`, for step t
     """
     B, Kp, K, Mp = xp.shape[0], xp.shape[1], xc.shape[1], pi.shape[1]
+    if max(Kp, K) > MAX_CANDIDATES:
+        raise ValueError("a beam step holds at most MAX_CANDIDATES candidates")
     n_acc = accel_table.shape[1]
-    npi = np.empty((B, M), np.int64)
-    nci = np.empty((B, M), np.int64)
+    npi = np.empty((B, M), PAIR_INDEX)
+    nci = np.empty((B, M), PAIR_INDEX)
     nla = np.empty((B, M))
     marg = np.empty((B, K))
     dense, key = np.empty((Kp, K)), np.empty((Kp, K))

@@ -37,7 +37,16 @@ import torch
 from mmwsim._threads import batch_map
 
 from ..matching import GUIDE
-from .beam import beam_smooth, motion_arrays, pair_forward, pair_start, rw_smooth, rw_step, sample_paths
+from .beam import (
+    MAX_CANDIDATES,
+    beam_smooth,
+    motion_arrays,
+    pair_forward,
+    pair_start,
+    rw_smooth,
+    rw_step,
+    sample_paths,
+)
 from .hmm import LOGP_FLOOR, STEP_SIGMAS
 from .memory import MEMORY_PATHS, MEMORY_WEIGHT, MotionMemory, memory_shift
 from .motion import SUBCELLS, MixtureMotion, MotionTable
@@ -342,6 +351,11 @@ class CandidateFilter:
         memory_skips: tuple[int, ...] = (),
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
+        if max(self.k, self.fine_k * int(n_sub) ** 2) > MAX_CANDIDATES:
+            raise ValueError(
+                f"k = {k} candidates and fine_k * n_sub^2 = {fine_k * n_sub**2} lattice points: a beam "
+                f"indexes at most {MAX_CANDIDATES} per step"
+            )
         self.vague_gate = vague_gate
         self.memory = memory if memory is not None and bool(memory.fitted) else None
         if memory_paths < 1:

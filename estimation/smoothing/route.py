@@ -561,19 +561,26 @@ def _forward_backward_changes(
             if t > 1:
                 anyw[:] = 0.0
                 for w in range(W):
-                    anyw += alpha[t - 1, w]
+                    for i in range(S):
+                        anyw[i] += alpha[t - 1, w, i]
             alpha[t] = 0.0
             tot = 0.0
             for w in range(W):
-                # the mass arriving at speed w, per bin of step t - 1, whole rows at a time
+                # the mass arriving at speed w, per bin of step t - 1, whole rows at a time (as
+                # loops: numba makes a temporary array for each array expression)
                 if t == 1:
-                    came[:] = prior[jlo + w] * first
+                    for i in range(S):
+                        came[i] = prior[jlo + w] * first[i]
                 else:
-                    came[:] = (1.0 - change) * alpha[t - 1, w] + change * redraw * prior[jlo + w] * anyw
+                    c = change * redraw * prior[jlo + w]
+                    for i in range(S):
+                        came[i] = (1.0 - change) * alpha[t - 1, w, i] + c * anyw[i]
                     for k in range(D):
                         was = w - deltas[k]
                         if 0 <= was < W:
-                            came += change * (1.0 - redraw) * prob[k] * alpha[t - 1, was]
+                            c = change * (1.0 - redraw) * prob[k]
+                            for i in range(S):
+                                came[i] += c * alpha[t - 1, was, i]
                 shift = jlo + w - d[u, t - 1]
                 for i in range(max(0, shift), min(S, S + shift)):
                     a = came[i - shift] * lik[u, t, i]
@@ -600,13 +607,18 @@ def _forward_backward_changes(
                 break
             redrawn[:] = 0.0
             for w in range(W):
-                redrawn += prior[jlo + w] * ahead[w]
+                for i in range(S):
+                    redrawn[i] += prior[jlo + w] * ahead[w, i]
+            c = change * redraw
             for w in range(W):
-                beta[w] = (1.0 - change) * ahead[w] + change * redraw * redrawn
+                for i in range(S):
+                    beta[w, i] = (1.0 - change) * ahead[w, i] + c * redrawn[i]
                 for k in range(D):
                     to = w + deltas[k]
                     if 0 <= to < W:
-                        beta[w] += change * (1.0 - redraw) * prob[k] * ahead[to]
+                        ck = change * (1.0 - redraw) * prob[k]
+                        for i in range(S):
+                            beta[w, i] += ck * ahead[to, i]
             beta /= max(beta.max(), 1e-300)
         for w in range(W):  # the first step: its speed drawn from the prior
             for i in range(S):

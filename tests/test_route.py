@@ -437,3 +437,42 @@ def test_online_tracker_puts_its_drivers_on_their_routes(monkeypatch):
     err = {k: np.linalg.norm(v[:, 1:] - true[:, 1:], axis=-1).mean() for k, v in now.items()}
     assert err[True] < 0.85 * err[False]
     assert np.array_equal(now[True][:, 0], now[False][:, 0])
+
+
+def test_prediction_routes_its_drivers_in_blocks_of_network_chunks(monkeypatch):
+    """The network runs in chunks of PREDICT_CHUNK sequences, the route pass once per block of
+    ROUTE_CHUNK (its cost per call is mostly fixed); the tracks do not depend on either size."""
+    from estimation import estimator as estimator_module
+    from estimation.noise import noisy_bits
+
+    tr = toy_sequence_set(128, 5, seed=1)
+    cfg = TrainConfig(model="tn-match", options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, tr.n_beams, tr.n_bins, tr.normaliser())
+    est.net.fit_motion(tr.positions, tr.grid_xy, tr.index)
+    est.net.motion_fine.route_speeds = torch.from_numpy(_speeds(5.5))
+    est.attach(dataclasses.replace(tr, streets=np.array([[[0.0, 20.0], [31.0, 20.0]]])), sigma=6.0)
+    x = np.linspace(0.2, 3.7, 40)[:, None] + 5.5 * np.arange(5)
+    true = np.stack([x, np.full_like(x, 20.0)], -1)
+    ij = np.rint(true - tr.grid_xy.min(0)).astype(np.int64)
+    drivers = dataclasses.replace(
+        tr,
+        index=ij[..., 0] + 32 * ij[..., 1],
+        positions=true.astype(np.float32),
+        kind=np.full(40, 3, np.int8),
+    )
+    inputs = est.inputs(noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4)).float())
+    blocks, route_tracks = [], est._route_tracks
+
+    def spy(tracked, xy, lp):
+        blocks.append(len(tracked))
+        return route_tracks(tracked, xy, lp)
+
+    monkeypatch.setattr(est, "_route_tracks", spy)
+    monkeypatch.setattr(estimator_module, "PREDICT_CHUNK", 8)
+    out = est.predict(inputs)
+    assert blocks == [40]  # five network chunks, one route pass
+    monkeypatch.setattr(estimator_module, "ROUTE_CHUNK", 16)
+    assert torch.equal(est.predict(inputs), out)
+    assert blocks[1:] == [16, 16, 8]
+    est.route_tracking = False
+    assert not torch.equal(est.predict(inputs), out)  # the route pass moved them

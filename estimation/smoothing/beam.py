@@ -50,8 +50,9 @@ _NEGLIGIBLE = -40.0
 # normal float64).
 _TINY = 1e-290
 # The kept pairs' candidate indices, stored for every step of every user until its backward
-# passes: half the bytes of int64 indices (a filter's stored state is mostly these and the
-# messages, and touching fresh memory is much of a forward step's cost).
+# passes: a quarter of the bytes of int64 indices, half of a pair's with its float64 message (a
+# filter's stored state is mostly these, and touching fresh memory is much of a forward step's
+# cost).
 PAIR_INDEX = np.int16
 MAX_CANDIDATES = int(np.iinfo(PAIR_INDEX).max)
 
@@ -436,7 +437,7 @@ def pair_start(x0, x1, lp0, lp1, M, step_table, bin_, place):
     """
     B, K0, K1 = x0.shape[0], x0.shape[1], x1.shape[1]
     if max(K0, K1) > MAX_CANDIDATES:
-        raise ValueError("a beam step holds at most MAX_CANDIDATES candidates")
+        raise ValueError("a beam step holds at most 32767 candidates (MAX_CANDIDATES)")
     pi = np.empty((B, M), PAIR_INDEX)
     ci = np.empty((B, M), PAIR_INDEX)
     la = np.empty((B, M))
@@ -481,7 +482,7 @@ def pair_forward(
     """
     B, Kp, K, Mp = xp.shape[0], xp.shape[1], xc.shape[1], pi.shape[1]
     if max(Kp, K) > MAX_CANDIDATES:
-        raise ValueError("a beam step holds at most MAX_CANDIDATES candidates")
+        raise ValueError("a beam step holds at most 32767 candidates (MAX_CANDIDATES)")
     n_acc = accel_table.shape[1]
     npi = np.empty((B, M), PAIR_INDEX)
     nci = np.empty((B, M), PAIR_INDEX)

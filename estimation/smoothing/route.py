@@ -566,8 +566,8 @@ def _forward_backward_changes(
             alpha[t] = 0.0
             tot = 0.0
             for w in range(W):
-                # the mass arriving at speed w, per bin of step t - 1, whole rows at a time (as
-                # loops: numba makes a temporary array for each array expression)
+                # the mass arriving at speed w, per bin of step t - 1, a row at a time (loops, not
+                # array expressions: numba makes a temporary array for each of those)
                 if t == 1:
                     for i in range(S):
                         came[i] = prior[jlo + w] * first[i]

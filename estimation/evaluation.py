@@ -77,12 +77,8 @@ def _shared_prefixes(
     Lmax = max(lengths)
     preds: dict[int, list[np.ndarray]] = {L: [] for L in lengths}
     seconds = dict.fromkeys(lengths, 0.0)
-    parts = iter(per_step(bits[:, :Lmax]))
-    while True:
-        t0 = time.perf_counter()
-        part = next(parts, _DONE)
-        if part is _DONE:
-            break
+    t0 = time.perf_counter()
+    for part in per_step(bits[:, :Lmax]):  # the time since t0: this part's per-step work
         step_seconds = (time.perf_counter() - t0) / Lmax
         t1 = time.perf_counter()
         shared = smooth(part, lengths)
@@ -92,10 +88,8 @@ def _shared_prefixes(
             t2 = time.perf_counter()
             preds[L].append(finish(x, L))
             seconds[L] += (step_seconds + per_step_shared) * L + time.perf_counter() - t2
+        t0 = time.perf_counter()
     return {L: (np.concatenate(preds[L]), seconds[L]) for L in lengths}
-
-
-_DONE = object()
 
 
 class NetworkMethod:

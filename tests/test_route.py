@@ -394,28 +394,38 @@ def test_estimator_smooths_its_drivers_along_the_attached_map():
     assert est._along_routes(tracked, x) is tracked
 
 
-def test_online_tracker_puts_its_drivers_on_their_routes(monkeypatch):
-    from estimation import estimator as estimator_module
-    from estimation.noise import noisy_bits
-
+def _street_estimator():
+    """A toy ``tn-match`` (its drivers measured at 5.5 m per step) attached to a toy set with one
+    street along y = 20 m: ``(set, estimator)``."""
     tr = toy_sequence_set(128, 5, seed=1)
     cfg = TrainConfig(model="tn-match", options={"search": 32, "k": 8, "d": 16, "ff": 32})
     est = Estimator(cfg, tr.n_beams, tr.n_bins, tr.normaliser())
     est.net.fit_motion(tr.positions, tr.grid_xy, tr.index)
     est.net.motion_fine.route_speeds = torch.from_numpy(_speeds(5.5))
     est.attach(dataclasses.replace(tr, streets=np.array([[[0.0, 20.0], [31.0, 20.0]]])), sigma=6.0)
+    return tr, est
+
+
+def _street_drivers(tr, n: int, T: int):
+    """``n`` drivers along :func:`_street_estimator`'s street at 5.5 m per step for ``T`` steps,
+    as a copy of ``tr`` (their fingerprints at their nearest grid points): ``(set, positions)``."""
+    x = np.linspace(0.2, 3.7, n)[:, None] + 5.5 * np.arange(T)
+    true = np.stack([x, np.full_like(x, 20.0)], -1)
+    ij = np.rint(true - tr.grid_xy.min(0)).astype(np.int64)
+    drivers = dataclasses.replace(
+        tr, index=ij[..., 0] + 32 * ij[..., 1], positions=true.astype(np.float32), kind=np.full(n, 3, np.int8)
+    )
+    return drivers, true
+
+
+def test_online_tracker_puts_its_drivers_on_their_routes(monkeypatch):
+    from estimation import estimator as estimator_module
+    from estimation.noise import noisy_bits
+
     # 64 drivers along the street at 5.5 m per step, one more step than the online window
     T = estimator_module.ONLINE_ROUTE_STEPS + 1
-    x = np.linspace(0.2, 3.7, 64)[:, None] + 5.5 * np.arange(T)
-    true = np.stack([x, np.full_like(x, 20.0)], -1)
-    lo = tr.grid_xy.min(0)
-    ij = np.rint(true - lo).astype(np.int64)
-    drivers = dataclasses.replace(
-        tr,
-        index=ij[..., 0] + 32 * ij[..., 1],
-        positions=true.astype(np.float32),
-        kind=np.full(64, 3, np.int8),
-    )
+    tr, est = _street_estimator()
+    drivers, true = _street_drivers(tr, 64, T)
     bits = noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4))
     windows = []
     route_tracks = est._route_tracks
@@ -445,21 +455,8 @@ def test_prediction_routes_its_drivers_in_blocks_of_network_chunks(monkeypatch):
     from estimation import estimator as estimator_module
     from estimation.noise import noisy_bits
 
-    tr = toy_sequence_set(128, 5, seed=1)
-    cfg = TrainConfig(model="tn-match", options={"search": 32, "k": 8, "d": 16, "ff": 32})
-    est = Estimator(cfg, tr.n_beams, tr.n_bins, tr.normaliser())
-    est.net.fit_motion(tr.positions, tr.grid_xy, tr.index)
-    est.net.motion_fine.route_speeds = torch.from_numpy(_speeds(5.5))
-    est.attach(dataclasses.replace(tr, streets=np.array([[[0.0, 20.0], [31.0, 20.0]]])), sigma=6.0)
-    x = np.linspace(0.2, 3.7, 40)[:, None] + 5.5 * np.arange(5)
-    true = np.stack([x, np.full_like(x, 20.0)], -1)
-    ij = np.rint(true - tr.grid_xy.min(0)).astype(np.int64)
-    drivers = dataclasses.replace(
-        tr,
-        index=ij[..., 0] + 32 * ij[..., 1],
-        positions=true.astype(np.float32),
-        kind=np.full(40, 3, np.int8),
-    )
+    tr, est = _street_estimator()
+    drivers, _ = _street_drivers(tr, 40, 5)
     inputs = est.inputs(noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4)).float())
     blocks, route_tracks = [], est._route_tracks
 

@@ -525,6 +525,8 @@ class Estimator(nn.Module):
         try:
             if isinstance(x, (torch.Tensor, np.ndarray)):
                 x = check_bits(x, self.n_beams, self.n_bins, ndim=4).float()
+                if x.shape[1] == 0:
+                    raise EstimationError("fingerprint sequences need at least one step, got 0")
                 if self.uses_grid:
                     x = self.inputs(x)
             parts = [self._predict_rows(_rows(x, rows)) for rows in _blocks(_length(x), ROUTE_CHUNK)]

@@ -97,7 +97,7 @@ def batch_map(kernel: Callable, n_batched: int, *args):
     the batch goes in slices of at most 32 items, taken by whichever thread is free."""
     B = args[0].shape[0]
     parts = pieces(B, 32, 32) if threads() > 1 else [slice(0, B)]
-    if len(parts) == 1:
+    if len(parts) <= 1:  # one slice, or an empty batch (the kernel's own empty results)
         return kernel(*args)
     outs = thread_map(lambda s: kernel(*(a[s] for a in args[:n_batched]), *args[n_batched:]), parts)
     if isinstance(outs[0], tuple):

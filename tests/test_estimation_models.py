@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from estimation import MODELS, BatchSampler, Estimator, TrainConfig, build_network, count_parameters
+from estimation import (
+    MODELS,
+    BatchSampler,
+    EstimationError,
+    Estimator,
+    TrainConfig,
+    build_network,
+    count_parameters,
+)
 from estimation.models import BASELINE_PAPER_OPTIONS, PAPER_OPTIONS, CellHead, CellOutput
 from estimation.models import positions as _position
 from estimation.models.embedding import BagEmbedding
@@ -157,3 +165,30 @@ def test_normaliser_round_trip():
     assert float(u.abs().max()) <= 1.0 + 1e-6
     assert torch.allclose(n.to_metres(u), y, atol=1e-4)
     assert np.allclose(n.centre, d.extent.mean(0))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_every_model_predicts_an_empty_batch_and_tracks_no_users(threads):
+    from mmwsim._threads import set_threads
+
+    d = toy_sequence_set(16, 4, nx=16, ny=16, n_beams=4, n_bins=8, seed=5)
+    set_threads(threads)  # the compiled kernels' slices: none for an empty batch
+    try:
+        for name, task in product(MODELS, ("tracking", "forecasting")):
+            options = {"search": 16, "k": 8, "d": 16, "ff": 32} if name == "tn-match" else {}
+            est = Estimator(TrainConfig(model=name, task=task, options=options), 4, 8, d.normaliser())
+            if est.uses_grid:  # measured tables: the sub-cell stage and the memory run too
+                est.net.fit_motion(d.positions, d.grid_xy, d.index)
+                est.attach(d)
+            out = est.predict(np.zeros((0, 5, 4, 8), np.uint8))
+            assert out.shape == (0, 5 if task == "tracking" else est.config.horizon, 2), (name, task)
+            assert est.predict(np.ones((2, 5, 4, 8), np.uint8)).shape[0] == 2
+            with pytest.raises(EstimationError, match="at least one step"):
+                est.predict(np.zeros((2, 0, 4, 8), np.uint8))
+            if name == "tn-match" and task == "tracking":
+                tracker = est.tracker()
+                for _ in range(5):  # past the steps where the filter pairs and weighs paths
+                    assert tracker.update(np.zeros((0, 4, 8))).shape == (0, 2)
+                assert tracker.track().shape == (0, 5, 2)
+    finally:
+        set_threads(None)

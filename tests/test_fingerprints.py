@@ -53,6 +53,8 @@ def test_empty_bins_never_fire_and_window_is_respected():
     empty = np.full((1, 4, 120), -np.inf, np.float32)
     assert not NoiseModel().bits(np.repeat(empty, 100, axis=0), rng).any()
     assert not FingerprintSampler(empty).sample(np.zeros(100, int), rng).any()
+    # no receivers at all: no fingerprints, of the right shape
+    assert FingerprintSampler(pdp).sample(np.zeros(0, int), rng).shape == (0, 8, 81)
     # no noise: a plain threshold
     b = NoiseModel(0.0).bits(pdp, rng)
     np.testing.assert_array_equal(b[0, :, 0], OFFSETS >= 0)

@@ -60,7 +60,7 @@ class BagEmbedding(nn.Module):
         weights = flat[which[:, 0], which[:, 1]].to(self.rows.dtype)
         h = F.embedding_bag(which[:, 1], self.rows, offsets, mode="sum", per_sample_weights=weights)
         h = self.drop(F.relu(h + self.bias))
-        return self.norm(self.out(h)).reshape(*lead, -1)
+        return self.norm(self.out(h)).reshape(*lead, self.out.out_features)
 
 
 EMBEDDINGS = {

@@ -469,7 +469,7 @@ class CandidateFilter:
         cxy = np.take_along_axis(kxy, top[..., None], 1) / self.spacing
         clp = np.take_along_axis(klp, top, 1)
         B, n = cxy.shape[0], len(self._offsets)
-        fxy = (cxy[:, :, None] + self._offsets).reshape(B, -1, 2)
+        fxy = (cxy[:, :, None] + self._offsets).reshape(B, cxy.shape[1] * n, 2)
         return fxy, np.repeat(clp, n, axis=1)
 
     def _memory_shift(

@@ -188,7 +188,7 @@ class FingerprintSampler:
             raise MmwsimError(f"receiver index out of range 0..{self.n_rx - 1}")
         if out is None:
             out = np.empty((len(idx),) + self.shape, dtype=np.uint8)
-        flat = out.reshape(len(idx), -1)
+        flat = out.reshape(len(idx), int(np.prod(self.shape)))
         starts = range(0, len(idx), _CHUNK)
         seeds = rng.integers(0, 2**63, size=len(starts), dtype=np.int64)
 

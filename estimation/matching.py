@@ -14,6 +14,7 @@ import weakref
 import numpy as np
 import torch
 
+from .errors import EstimationError
 from .noise import check_bits, log_detection_probabilities
 from .tile_search import TileIndex
 
@@ -68,6 +69,10 @@ class FingerprintMatcher:
         eps: float = 1e-6,
         chunk: int = 16384,
     ):
+        if not (math.isfinite(float(sigma)) and float(sigma) >= 0.0):
+            raise EstimationError(
+                f"the fingerprint noise sigma must be a finite number of dB >= 0, got {sigma!r}"
+            )
         self.grid_pdp, self.grid_xy = grid_pdp, np.asarray(grid_xy, np.float64)
         self._xy_given = grid_xy  # what shared() compares
         self.sigma, self.threshold, self.eps, self.chunk = float(sigma), float(threshold), eps, chunk

@@ -180,6 +180,8 @@ class Material:
         campaigns above 100 GHz), the first listed band that contains the frequency is used, as
         Sionna RT does; outside every band, the nearest one on a log-frequency scale.
         """
+        if not (isinstance(frequency, numbers.Real) and math.isfinite(frequency) and frequency > 0):
+            raise MmwsimError(f"frequency must be a positive, finite number of Hz, got {frequency!r}")
         f_ghz = frequency / 1e9
         best = min(self.bands, key=lambda b: b.distance(f_ghz))
         if warn and not best.contains(f_ghz):

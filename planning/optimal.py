@@ -19,7 +19,7 @@ import scipy.sparse.csgraph
 import shapely
 from shapely.geometry.polygon import orient
 
-from .space import AgentSpace
+from .space import AgentSpace, as_point
 
 __all__ = ["ShortestPath", "shortest_path", "free_region"]
 
@@ -68,9 +68,14 @@ def shortest_path(space: AgentSpace, start, goal, quad_segs: int = 16) -> Shorte
         Metres.
     quad_segs : int
         Vertices per quarter circle of the inflated corners.
+
+    Raises
+    ------
+    PlanningError
+        Where ``start`` or ``goal`` is not two finite numbers (one that lies in no free space has
+        no path: None).
     """
-    s = np.asarray(start, dtype=np.float64).reshape(2)
-    g = np.asarray(goal, dtype=np.float64).reshape(2)
+    s, g = np.array(as_point(start, "start")), np.array(as_point(goal, "goal"))
     region = free_region(space, quad_segs)
     shapely.prepare(region)
     if not (shapely.intersects_xy(region, *s) and shapely.intersects_xy(region, *g)):

@@ -48,6 +48,18 @@ _MAX_STRIDES = 64
 _MAX_NODES = 1 << 23
 
 
+def as_point(point, what: str) -> tuple[float, float]:
+    """``point`` as ``(x, y)`` metres, or a one-line :class:`PlanningError` naming ``what`` where it
+    is not two finite numbers."""
+    try:
+        p = np.asarray(point, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        p = np.zeros(0)
+    if p.shape != (2,) or not np.all(np.isfinite(p)):
+        raise PlanningError(f"{what} must be two finite numbers X,Y, got {point!r}")
+    return float(p[0]), float(p[1])
+
+
 class AgentSpace:
     """Valid states and motions of a cylinder agent among a scene's buildings.
 
@@ -276,10 +288,7 @@ class AgentSpace:
         -------
         (x, y) float, metres
         """
-        p = np.asarray(point, dtype=np.float64).ravel()
-        if p.shape != (2,) or not np.all(np.isfinite(p)):
-            raise PlanningError(f"{what} must be two finite numbers X,Y, got {point!r}")
-        x, y = float(p[0]), float(p[1])
+        x, y = as_point(point, what)
         at = f"{what} ({x:g}, {y:g})"
         lo, hi = self.scene.extent
         if not (lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]):

@@ -192,3 +192,12 @@ def test_every_model_predicts_an_empty_batch_and_tracks_no_users(threads):
                 assert tracker.track().shape == (0, 5, 2)
     finally:
         set_threads(None)
+
+
+def test_a_noise_level_that_is_no_number_of_decibels_is_refused():
+    d = toy_sequence_set(16, 4, nx=16, ny=16, n_beams=4, n_bins=8, seed=5)
+    est = Estimator(TrainConfig(model="tn-match", options={"search": 16, "k": 8}), 4, 8, d.normaliser())
+    for sigma in (float("nan"), -3.0, float("inf")):
+        with pytest.raises(EstimationError, match="noise sigma must be a finite number of dB"):
+            est.attach(d, sigma=sigma)
+    assert est.attach(d, sigma=0.0).matcher.sigma == 0.0  # noise-free: a plain threshold

@@ -86,6 +86,13 @@ def test_bad_inputs():
         NoiseModel().bits(np.zeros((1, 2, 50)), np.random.default_rng(0))
     with pytest.raises(MmwsimError, match="out of range"):
         FingerprintSampler(np.zeros((3, 2, 120))).sample([3], np.random.default_rng(0))
+    # a mask or a fraction is not read as receivers 0 and 1, or rounded down
+    sampler = FingerprintSampler(np.zeros((3, 2, 120)))
+    with pytest.raises(MmwsimError, match="boolean mask"):
+        sampler.sample(np.array([True, False, True]), np.random.default_rng(0))
+    with pytest.raises(MmwsimError, match="whole numbers, got 1.5"):
+        sampler.sample(np.array([1.0, 1.5]), np.random.default_rng(0))
+    assert sampler.sample(np.array([1.0, 2.0]), np.random.default_rng(0)).shape == (2, 2, 81)
     with pytest.raises(MmwsimError, match="sigma"):
         NoiseModel(-1.0)
     with pytest.raises(MmwsimError, match="threshold"):

@@ -176,6 +176,9 @@ def test_aliases_and_unknown():
     assert canonical_name("adamantium") is None
     with pytest.raises(MmwsimError, match="unknown material 'adamantium'"):
         get_material("adamantium")
+    for f in (float("nan"), -1.0, 0.0, float("inf")):
+        with pytest.raises(MmwsimError, match="frequency must be a positive, finite number"):
+            get_material("concrete").complex_permittivity(f)
 
 
 def test_custom_material_and_thickness():

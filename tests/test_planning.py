@@ -113,6 +113,10 @@ def test_optimum_closed_forms(walled, open_space):
     # Polygonal arcs with vertices on the circle: a lower bound, tight to well under a millimetre.
     assert exact - 1e-3 < around.length <= exact + 1e-9
     assert np.all(around.path[:, 1] >= 0.0)
+    # a start or goal that is no point is refused, not read as one without a path
+    for start in ((math.nan, 0.0), (1.0, 2.0, 3.0), "a"):
+        with pytest.raises(PlanningError, match="start must be two finite numbers"):
+            shortest_path(open_space, start, (70.0, -20.0))
 
 
 def test_no_path_when_goal_is_walled_in():

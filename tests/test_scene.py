@@ -119,3 +119,10 @@ def test_receiver_grid():
     np.testing.assert_array_equal(pos[401 * 203 + 200], [200, 203, 1.5])  # x index runs fastest
     coarse = g.with_spacing(4.0)
     assert coarse.shape == (101, 101) and coarse.bounds[1].tolist() == [400, 400]
+    # the nearest grid point: off the grid at its edge, a position that is no number refused
+    assert g.nearest_index(np.array([[200.4, 202.6], [-5.0, 1e6]])).tolist() == [401 * 203 + 200, 401 * 400]
+    assert g.nearest_index(np.zeros((0, 3))).shape == (0,)
+    with pytest.raises(MmwsimError, match="NaN or infinite"):
+        g.nearest_index(np.array([[np.nan, 3.0]]))
+    with pytest.raises(MmwsimError, match=r"shape \(\.\.\., 2\)"):
+        g.nearest_index(np.zeros((3, 4)))

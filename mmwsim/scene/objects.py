@@ -135,6 +135,10 @@ class ReceiverGrid:
         (...) int64
         """
         p = np.asarray(xy, dtype=np.float64)
+        if p.ndim == 0 or p.shape[-1] not in (2, 3):
+            raise MmwsimError(f"positions must have shape (..., 2) or (..., 3), got {p.shape}")
+        if not np.isfinite(p[..., :2]).all():
+            raise MmwsimError("positions contain NaN or infinite coordinates")
         ix = np.clip(np.rint((p[..., 0] - self.origin[0]) / self.spacing), 0, self.shape[0] - 1).astype(
             np.int64
         )

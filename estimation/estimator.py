@@ -55,7 +55,7 @@ PREDICT_CHUNK = 64
 # Sequences per route pass (and forecast) in prediction: the route pass costs about 11 ms per call
 # whatever its size (the street map's feet, the candidates' lookup), a third of its time on
 # chunks of 64 (1000 seven-step sequences: 0.52 s in 16 calls, 0.35 s in one); bounded, as its
-# arrays grow with the block.
+# arrays grow with the block, as do the candidate filter's, which prediction makes per block too.
 ROUTE_CHUNK = 1024
 ONLINE_ROUTE_STEPS = 5
 """Steps (the current one and those before it) over which :meth:`OnlineTracker.update` smooths
@@ -519,17 +519,21 @@ class Estimator(nn.Module):
     @torch.no_grad()
     def predict(self, x: Any) -> torch.Tensor:
         """``bits (B, T, M, N_s)`` of 0/1, a tensor or array of any dtype (or their :meth:`inputs`)
-        -> positions ``(B, T_out, 2)`` float32, metres."""
+        -> positions ``(B, T_out, 2)`` float32, metres.
+
+        Bits go through in blocks of :data:`ROUTE_CHUNK` sequences, each block's :meth:`inputs`
+        made and let go in turn: memory is a block's, whatever ``B`` (a grid-reading network's
+        filter holds about 60 kB per sequence and step)."""
         was = self.training
         self.eval()
         try:
-            if isinstance(x, (torch.Tensor, np.ndarray)):
+            raw = isinstance(x, (torch.Tensor, np.ndarray))
+            if raw:
                 x = check_bits(x, self.n_beams, self.n_bins, ndim=4).float()
                 if x.shape[1] == 0:
                     raise EstimationError("fingerprint sequences need at least one step, got 0")
-                if self.uses_grid:
-                    x = self.inputs(x)
-            parts = [self._predict_rows(_rows(x, rows)) for rows in _blocks(_length(x), ROUTE_CHUNK)]
+            found = self.inputs if raw and self.uses_grid else (lambda rows: rows)
+            parts = [self._predict_rows(found(_rows(x, rows))) for rows in _blocks(_length(x), ROUTE_CHUNK)]
             return torch.cat(parts) if len(parts) != 1 else parts[0]
         finally:
             self.train(was)

@@ -471,5 +471,10 @@ def test_prediction_routes_its_drivers_in_blocks_of_network_chunks(monkeypatch):
     monkeypatch.setattr(estimator_module, "ROUTE_CHUNK", 16)
     assert torch.equal(est.predict(inputs), out)
     assert blocks[1:] == [16, 16, 8]
+    # from bits, each block's candidates are filtered and let go before the next block's
+    bits = noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4)).float()
+    filtered, make = [], est.inputs
+    monkeypatch.setattr(est, "inputs", lambda b: filtered.append(len(b)) or make(b))
+    assert torch.equal(est.predict(bits), out) and filtered == [16, 16, 8]
     est.route_tracking = False
     assert not torch.equal(est.predict(inputs), out)  # the route pass moved them

@@ -532,8 +532,8 @@ class Estimator(nn.Module):
                 x = check_bits(x, self.n_beams, self.n_bins, ndim=4).float()
                 if x.shape[1] == 0:
                     raise EstimationError("fingerprint sequences need at least one step, got 0")
-            found = self.inputs if raw and self.uses_grid else (lambda rows: rows)
-            parts = [self._predict_rows(found(_rows(x, rows))) for rows in _blocks(_length(x), ROUTE_CHUNK)]
+            prepare = self.inputs if raw and self.uses_grid else (lambda block: block)
+            parts = [self._predict_rows(prepare(_rows(x, b))) for b in _blocks(_length(x), ROUTE_CHUNK)]
             return torch.cat(parts) if len(parts) != 1 else parts[0]
         finally:
             self.train(was)

@@ -183,18 +183,17 @@ class FingerprintSampler:
         (n, n_beams, n_window) uint8
             0 / 1 bits.
         """
-        raw = np.asarray(index)
+        raw = np.asarray(index).ravel()
         # a boolean mask would be read as receivers 0 and 1, a fraction rounded down
-        if raw.size and raw.dtype.kind == "b":
-            raise MmwsimError(
-                "receiver indices must be whole numbers, got a boolean mask (use np.flatnonzero)"
-            )
         if raw.size and raw.dtype.kind not in "iu":
-            flat = raw.ravel()
-            bad = np.flatnonzero(flat != np.rint(flat)) if flat.dtype.kind == "f" else np.zeros(1, int)
-            if len(bad):
-                raise MmwsimError(f"receiver indices must be whole numbers, got {flat[bad[0]].item()!r}")
-        idx = raw.astype(np.int64).ravel()
+            if raw.dtype.kind == "b":
+                raise MmwsimError(
+                    "receiver indices must be whole numbers, got a boolean mask (use np.flatnonzero)"
+                )
+            bad = raw[raw != np.rint(raw)] if raw.dtype.kind == "f" else raw
+            if bad.size:
+                raise MmwsimError(f"receiver indices must be whole numbers, got {bad[0].item()!r}")
+        idx = raw.astype(np.int64)
         if len(idx) and (idx.min() < 0 or idx.max() >= self.n_rx):
             raise MmwsimError(f"receiver index out of range 0..{self.n_rx - 1}")
         if out is None:

@@ -27,7 +27,7 @@ from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
-from .smoothing.online import CandidateFilter
+from .smoothing.online import FILTER_CANDIDATES, CandidateFilter
 from .smoothing.route import route_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
@@ -362,7 +362,10 @@ class Estimator(nn.Module):
         """A fresh online filter over the grid's match candidates with the network's motion
         tables (:class:`~estimation.smoothing.online.CandidateFilter`): feed it one step of
         :meth:`search` results at a time, then :meth:`~CandidateFilter.smooth` gives what the
-        network reads for any prefix. Only for a grid-reading network.
+        network reads for any prefix. Only for a grid-reading network. With measured tables it
+        carries :data:`~estimation.smoothing.online.FILTER_CANDIDATES` candidates per step (at
+        most the search's, at least the network's ``k``): the network reads the first ``k`` of
+        them, the route pass all; with the hand-set motion, ``k`` (``match-cv``'s filter).
 
         With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
         the measured motion against their
@@ -376,16 +379,16 @@ class Estimator(nn.Module):
         if not self.uses_grid:
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
-        if not bool(net.motion.fitted):  # the hand-set motion
+        if not bool(net.motion.fitted):  # the hand-set motion: match-cv's filter
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
-        step = float(net.grid_step)
+        k, step = min(max(net.k, FILTER_CANDIDATES), net.search), float(net.grid_step)
         alternative, fine_weighed, steady = (
             self._alternative_motion()
             if (self.robust_motion if robust is None else robust)
             else (None, (), ())
         )
         return CandidateFilter(
-            *self._lane_motion(), step, net.k, alternative=alternative, fine_weighed=fine_weighed,
+            *self._lane_motion(), step, k, alternative=alternative, fine_weighed=fine_weighed,
             memory=net.memory, memory_skips=steady,
         )  # fmt: skip
 
@@ -477,10 +480,10 @@ class Estimator(nn.Module):
         self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
-        grid-reading network its filtered and smoothed candidates ``(xy (B, T, k, 2) metres,
-        posteriors (B, T, k, P))`` and the classical estimate ``(B, T, 2)`` metres it starts from
-        (see :meth:`candidate_filter`), from the bits or from their :meth:`search` result
-        ``found``."""
+        grid-reading network its filtered and smoothed candidates ``(xy (B, T, K, 2) metres,
+        posteriors (B, T, K, P))`` and the classical estimate ``(B, T, 2)`` metres it starts from
+        (see :meth:`candidate_filter`, whose ``K`` candidates per step may be more than the
+        network's ``k``), from the bits or from their :meth:`search` result ``found``."""
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found

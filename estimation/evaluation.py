@@ -73,7 +73,7 @@ def _shared_prefixes(
 
     ``per_step`` may give its parts one at a time (a generator): each is smoothed and let go
     before the next is made, so that only one part's state (a candidate filter's stored
-    messages, about 54 kB per user and step) is held at once."""
+    messages, about 57 kB per user and step) is held at once."""
     Lmax = max(lengths)
     preds: dict[int, list[np.ndarray]] = {L: [] for L in lengths}
     seconds = dict.fromkeys(lengths, 0.0)

@@ -33,6 +33,7 @@ from estimation.smoothing.hmm import (
 )
 from estimation.smoothing.memory import MotionMemory
 from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
+from estimation.smoothing.online import FILTER_CANDIDATES
 from estimation.synthetic import toy_sequence_set
 from mmwsim.trajectories.motion import KINDS
 
@@ -384,6 +385,21 @@ def test_untrained_network_is_the_velocity_smoother_and_translation_invariant():
     assert torch.allclose(net(xy + shift, post), out + shift, atol=1e-3)
 
 
+def test_the_network_reads_its_first_k_of_the_candidates_a_filter_carries():
+    """The filter carries more candidates per step than the network's ``k`` (FILTER_CANDIDATES);
+    the network reads the first ``k``, whatever follows them."""
+    torch.manual_seed(0)
+    net = CandidateTransformer(search=20, k=6, d=16, ff=32, dropout=0.0).eval()
+    g = torch.Generator().manual_seed(1)
+    xy, post = candidate_features(
+        torch.rand(2, 5, 20, 2, generator=g) * 50, torch.randn(2, 5, 20, generator=g), 10
+    )
+    fine = (torch.softmax(post[..., -1], -1)[..., None] * xy).sum(2)
+    out = net(xy[:, :, :6], post[:, :, :6], fine)
+    assert torch.equal(net(xy, post, fine), out)
+    assert torch.equal(net(xy, torch.cat([post[:, :, :6], post[:, :, 6:] * 0 + 5.0], 2), fine), out)
+
+
 def test_training_drops_no_attention_weights():
     """Dropout stays on the residual and feed-forward paths, not on the attention weights (whose
     dropout keeps training's attention from running fused)."""
@@ -585,9 +601,13 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert plain.memory is est.net.memory
     plain.memory = None  # the first-order smoother alone
     xy, post, fine = plain.run(*found).smooth()
-    assert torch.allclose(
-        post[..., -1], velocity_posterior(xy, post[..., 0], expect).clamp(min=-30), atol=1e-5
-    )
+    # it carries the search's 32 candidates per step (FILTER_CANDIDATES, at most the search's),
+    # more than the 8 the network reads; where its beam of pairs kept a candidate, the
+    # first-order posterior is the dense smoother's (the pruned ones sit at the floor)
+    assert xy.shape[2] == min(FILTER_CANDIDATES, 32) > est.net.k
+    dense = velocity_posterior(xy, post[..., 0], expect).clamp(min=-30)
+    kept = dense > -20
+    assert kept.any(-1).all() and torch.allclose(post[..., -1][kept], dense[kept], atol=1e-5)
     # and the sub-cell table, on the training positions snapped to the lattice (toy grid: 1 m)
     u = snap_to_lattice(tr.positions - lo)
     lattice = MotionTable.lattice().fit(u).fit_place(u + lo, lo - 0.5, 1 / 3, (96, 96))

@@ -223,7 +223,9 @@ class CandidateTransformer(nn.Module):
         return extrapolate(tracked, self.horizon)
 
     def track(self, xy: torch.Tensor, post: torch.Tensor, fine: torch.Tensor | None = None) -> torch.Tensor:
-        """Positions ``(B, T, 2)`` metres of the observed steps (see :meth:`forward`)."""
+        """Positions ``(B, T, 2)`` metres of the observed steps (see :meth:`forward`). Reads the
+        first ``k`` candidates of each step where the filter carries more."""
+        xy, post = xy[:, :, : self.k], post[:, :, : self.k]
         B, T, K, _ = xy.shape
         if fine is None:
             fine = self.smoothed(xy, post)

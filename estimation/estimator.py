@@ -358,14 +358,15 @@ class Estimator(nn.Module):
             )
         return self.matcher.track_candidates(bits, self.net.search, refs)
 
-    def candidate_filter(self, robust: bool | None = None) -> CandidateFilter:
+    def candidate_filter(self, robust: bool | None = None, candidates: int | None = None) -> CandidateFilter:
         """A fresh online filter over the grid's match candidates with the network's motion
         tables (:class:`~estimation.smoothing.online.CandidateFilter`): feed it one step of
         :meth:`search` results at a time, then :meth:`~CandidateFilter.smooth` gives what the
         network reads for any prefix. Only for a grid-reading network. With measured tables it
-        carries :data:`~estimation.smoothing.online.FILTER_CANDIDATES` candidates per step (at
-        most the search's, at least the network's ``k``): the network reads the first ``k`` of
-        them, the route pass all; with the hand-set motion, ``k`` (``match-cv``'s filter).
+        carries ``candidates`` per step (default
+        :data:`~estimation.smoothing.online.FILTER_CANDIDATES`; at most the search's, at least
+        the network's ``k``): the network reads the first ``k`` of them, the route pass all; with
+        the hand-set motion, ``k`` (``match-cv``'s filter).
 
         With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
         the measured motion against their
@@ -381,7 +382,8 @@ class Estimator(nn.Module):
         net = self.net
         if not bool(net.motion.fitted):  # the hand-set motion: match-cv's filter
             return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
-        k, step = min(max(net.k, FILTER_CANDIDATES), net.search), float(net.grid_step)
+        wanted = FILTER_CANDIDATES if candidates is None else int(candidates)
+        k, step = min(max(net.k, wanted), net.search), float(net.grid_step)
         alternative, fine_weighed, steady = (
             self._alternative_motion()
             if (self.robust_motion if robust is None else robust)
@@ -477,17 +479,21 @@ class Estimator(nn.Module):
         return self._broadened[1]
 
     def inputs(
-        self, bits: torch.Tensor | None = None, found: tuple[torch.Tensor, torch.Tensor] | None = None
+        self,
+        bits: torch.Tensor | None = None,
+        found: tuple[torch.Tensor, torch.Tensor] | None = None,
+        candidates: int | None = None,
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
         grid-reading network its filtered and smoothed candidates ``(xy (B, T, K, 2) metres,
         posteriors (B, T, K, P))`` and the classical estimate ``(B, T, 2)`` metres it starts from
-        (see :meth:`candidate_filter`, whose ``K`` candidates per step may be more than the
-        network's ``k``), from the bits or from their :meth:`search` result ``found``."""
+        (see :meth:`candidate_filter`, whose ``K`` candidates per step, ``candidates``, may be
+        more than the network's ``k``), from the bits or from their :meth:`search` result
+        ``found``."""
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found
-        return self.candidate_filter().run(xy, score).smooth()
+        return self.candidate_filter(candidates=candidates).run(xy, score).smooth()
 
     def tracker(self) -> OnlineTracker:
         """An online tracker of a batch of users: :meth:`OnlineTracker.update` takes each new

@@ -402,7 +402,15 @@ def _validation_batches(est: Estimator, val_sampler: BatchSampler) -> Iterable[B
     done once here."""
     if not est.uses_grid:
         return _Epoch0(val_sampler)
-    return [replace(b, bits=b.bits[:0], inputs=est.inputs(b.bits)) for b in val_sampler.epoch(0)]
+    return [replace(b, bits=b.bits[:0], inputs=_inputs(est, b.bits)) for b in val_sampler.epoch(0)]
+
+
+def _inputs(est: Estimator, bits: torch.Tensor) -> Any:
+    """What the network trains on: a grid-reading network's inputs from a filter of its own ``k``
+    candidates per step. Prediction's filter keeps more (``FILTER_CANDIDATES``), whose better
+    estimate a network trained this way reads with a gain; trained on that filter's own inputs,
+    the 8-minute network tracked worse (docs/estimation.md, "More candidates kept than read")."""
+    return est.inputs(bits, candidates=est.net.k) if est.uses_grid else est.inputs(bits)
 
 
 class _Epoch0:
@@ -429,7 +437,7 @@ def _train_epoch(
     else:
         drawn, n_batches = sampler.epoch(epoch), len(sampler)
     # The worker thread also prepares what the network reads (candidate search for tn-match).
-    batches = _prefetch(replace(b, inputs=est.inputs(b.bits)) for b in drawn)
+    batches = _prefetch(replace(b, inputs=_inputs(est, b.bits)) for b in drawn)
     if progress:
         from tqdm import tqdm
 

@@ -35,6 +35,7 @@ from estimation.smoothing.memory import MotionMemory
 from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from estimation.smoothing.online import FILTER_CANDIDATES
 from estimation.synthetic import toy_sequence_set
+from estimation.training import _inputs as training_inputs
 from mmwsim.trajectories.motion import KINDS
 
 
@@ -605,6 +606,8 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # more than the 8 the network reads; where its beam of pairs kept a candidate, the
     # first-order posterior is the dense smoother's (the pruned ones sit at the floor)
     assert xy.shape[2] == min(FILTER_CANDIDATES, 32) > est.net.k
+    # training reads a filter of the network's own k (prediction's estimate, from more, is better)
+    assert training_inputs(est, bits[:4])[0].shape[2] == est.net.k
     dense = velocity_posterior(xy, post[..., 0], expect).clamp(min=-30)
     kept = dense > -20
     assert kept.any(-1).all() and torch.allclose(post[..., -1][kept], dense[kept], atol=1e-5)

@@ -606,11 +606,11 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # more than the 8 the network reads; where its beam of pairs kept a candidate, the
     # first-order posterior is the dense smoother's (the pruned ones sit at the floor)
     assert xy.shape[2] == min(FILTER_CANDIDATES, 32) > est.net.k
-    # training reads a filter of the network's own k (prediction's estimate, from more, is better)
-    assert training_inputs(est, bits[:4])[0].shape[2] == est.net.k
     dense = velocity_posterior(xy, post[..., 0], expect).clamp(min=-30)
     kept = dense > -20
     assert kept.any(-1).all() and torch.allclose(post[..., -1][kept], dense[kept], atol=1e-5)
+    # training reads a filter of the network's own k (prediction's estimate, from more, is better)
+    assert training_inputs(est, bits[:4])[0].shape[2] == est.net.k
     # and the sub-cell table, on the training positions snapped to the lattice (toy grid: 1 m)
     u = snap_to_lattice(tr.positions - lo)
     lattice = MotionTable.lattice().fit(u).fit_place(u + lo, lo - 0.5, 1 / 3, (96, 96))

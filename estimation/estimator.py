@@ -27,7 +27,7 @@ from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
-from .smoothing.online import FILTER_CANDIDATES, CandidateFilter
+from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
 from .smoothing.route import route_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
@@ -358,7 +358,9 @@ class Estimator(nn.Module):
             )
         return self.matcher.track_candidates(bits, self.net.search, refs)
 
-    def candidate_filter(self, robust: bool | None = None, candidates: int | None = None) -> CandidateFilter:
+    def candidate_filter(
+        self, robust: bool | None = None, candidates: int | None = None, mode_chain: float | None = None
+    ) -> CandidateFilter:
         """A fresh online filter over the grid's match candidates with the network's motion
         tables (:class:`~estimation.smoothing.online.CandidateFilter`): feed it one step of
         :meth:`search` results at a time, then :meth:`~CandidateFilter.smooth` gives what the
@@ -366,7 +368,9 @@ class Estimator(nn.Module):
         carries ``candidates`` per step (default
         :data:`~estimation.smoothing.online.FILTER_CANDIDATES`; at most the search's, at least
         the network's ``k``): the network reads the first ``k`` of them, the route pass all; with
-        the hand-set motion, ``k`` (``match-cv``'s filter).
+        the hand-set motion, ``k`` (``match-cv``'s filter). ``mode_chain`` (default
+        :data:`~estimation.smoothing.online.MODE_CHAIN` with measured tables, ``math.inf`` with
+        the hand-set motion): see :class:`~estimation.smoothing.online.CandidateFilter`.
 
         With ``robust`` (default :attr:`robust_motion`) and measured tables, the filter weighs
         the measured motion against their
@@ -381,7 +385,10 @@ class Estimator(nn.Module):
             raise EstimationError(f"{self.name} reads the bits, not match candidates")
         net = self.net
         if not bool(net.motion.fitted):  # the hand-set motion: match-cv's filter
-            return CandidateFilter(MixtureMotion(), net.motion_fine, float(net.grid_step), net.k)
+            chain = math.inf if mode_chain is None else mode_chain
+            return CandidateFilter(
+                MixtureMotion(), net.motion_fine, float(net.grid_step), net.k, mode_chain=chain
+            )
         wanted = FILTER_CANDIDATES if candidates is None else int(candidates)
         k, step = min(max(net.k, wanted), net.search), float(net.grid_step)
         alternative, fine_weighed, steady = (
@@ -391,7 +398,7 @@ class Estimator(nn.Module):
         )
         return CandidateFilter(
             *self._lane_motion(), step, k, alternative=alternative, fine_weighed=fine_weighed,
-            memory=net.memory, memory_skips=steady,
+            memory=net.memory, memory_skips=steady, mode_chain=MODE_CHAIN if mode_chain is None else mode_chain,
         )  # fmt: skip
 
     def _tables_stamp(self, *extra: Any) -> tuple:
@@ -483,17 +490,18 @@ class Estimator(nn.Module):
         bits: torch.Tensor | None = None,
         found: tuple[torch.Tensor, torch.Tensor] | None = None,
         candidates: int | None = None,
+        mode_chain: float | None = None,
     ) -> Any:
         """What the network reads for ``bits (B, T, M, N_s)``: the bits themselves, or for a
         grid-reading network its filtered and smoothed candidates ``(xy (B, T, K, 2) metres,
         posteriors (B, T, K, P))`` and the classical estimate ``(B, T, 2)`` metres it starts from
         (see :meth:`candidate_filter`, whose ``K`` candidates per step, ``candidates``, may be
-        more than the network's ``k``), from the bits or from their :meth:`search` result
-        ``found``."""
+        more than the network's ``k``, and ``mode_chain`` as there), from the bits or from their
+        :meth:`search` result ``found``."""
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found
-        return self.candidate_filter(candidates=candidates).run(xy, score).smooth()
+        return self.candidate_filter(candidates=candidates, mode_chain=mode_chain).run(xy, score).smooth()
 
     def tracker(self) -> OnlineTracker:
         """An online tracker of a batch of users: :meth:`OnlineTracker.update` takes each new

@@ -407,10 +407,14 @@ def _validation_batches(est: Estimator, val_sampler: BatchSampler) -> Iterable[B
 
 def _inputs(est: Estimator, bits: torch.Tensor) -> Any:
     """What the network trains on: a grid-reading network's inputs from a filter of its own ``k``
-    candidates per step. Prediction's filter keeps more (``FILTER_CANDIDATES``), whose better
-    estimate a network trained this way reads with a gain; trained on that filter's own inputs,
-    the 8-minute network tracked worse (docs/estimation.md, "More candidates kept than read")."""
-    return est.inputs(bits, candidates=est.net.k) if est.uses_grid else est.inputs(bits)
+    candidates per step, its split cells one mode. Prediction's filter keeps more
+    (``FILTER_CANDIDATES``) and places each mode of the split cells apart (``MODE_CHAIN``),
+    whose better estimate a network trained this way reads with a gain; trained on that
+    filter's own candidates, the 8-minute network tracked worse (docs/estimation.md, "More
+    candidates kept than read"; on its modes, "Modes of the split cells")."""
+    if not est.uses_grid:
+        return est.inputs(bits)
+    return est.inputs(bits, candidates=est.net.k, mode_chain=math.inf)
 
 
 class _Epoch0:

@@ -33,7 +33,7 @@ from estimation.smoothing.hmm import (
 )
 from estimation.smoothing.memory import MotionMemory
 from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
-from estimation.smoothing.online import FILTER_CANDIDATES
+from estimation.smoothing.online import FILTER_CANDIDATES, MODE_CHAIN
 from estimation.synthetic import toy_sequence_set
 from estimation.training import _inputs as training_inputs
 from mmwsim.trajectories.motion import KINDS
@@ -609,8 +609,16 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     dense = velocity_posterior(xy, post[..., 0], expect).clamp(min=-30)
     kept = dense > -20
     assert kept.any(-1).all() and torch.allclose(post[..., -1][kept], dense[kept], atol=1e-5)
-    # training reads a filter of the network's own k (prediction's estimate, from more, is better)
-    assert training_inputs(est, bits[:4])[0].shape[2] == est.net.k
+    # training reads a filter of the network's own k (prediction's estimate, from more, is
+    # better), its split cells one mode
+    trained_on = training_inputs(est, bits[:4])
+    assert trained_on[0].shape[2] == est.net.k
+    one_mode = est.candidate_filter(candidates=est.net.k, mode_chain=math.inf).run(*est.search(bits[:4]))
+    assert torch.equal(trained_on[2], one_mode.smooth()[2])
+    assert (
+        est.candidate_filter().mode_chain == MODE_CHAIN
+        and est.candidate_filter(mode_chain=2.0).mode_chain == 2.0
+    )
     # and the sub-cell table, on the training positions snapped to the lattice (toy grid: 1 m)
     u = snap_to_lattice(tr.positions - lo)
     lattice = MotionTable.lattice().fit(u).fit_place(u + lo, lo - 0.5, 1 / 3, (96, 96))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from estimation import EstimationError, Estimator, TrainConfig, noisy_bits
 from estimation.smoothing.beam import motion_arrays
 from estimation.smoothing.hmm import velocity_posterior
 from estimation.smoothing.motion import HEADINGS, MixtureMotion, MotionTable, snap_to_lattice
-from estimation.smoothing.online import CandidateFilter
+from estimation.smoothing.online import CandidateFilter, _mode_means
 from estimation.synthetic import toy_sequence_set
 from mmwsim._threads import set_threads
 
@@ -193,7 +194,9 @@ def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
         lattice.fit_place(snap_to_lattice(_tracks()), (-60.5, -60.5), 1 / 3, (363, 363), speed=3.0)
     xy, score = _candidates(B=2, T=4, S=4)
     xy = torch.round(xy)  # grid points of a 1 m grid
-    f = CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36, vague_gate=None)
+    f = CandidateFilter(
+        MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=36 * 36, vague_gate=None, mode_chain=math.inf
+    )
     f.run(xy, score)
     kxy, post, fine = f.smooth()
     # every cell split into its 3 x 3 lattice points, each with its cell's likelihood
@@ -202,6 +205,49 @@ def test_sub_cell_stage_without_pruning_is_the_dense_sub_cell_smoother(place):
     # the dense smoother in float64 (in float32 a lattice step of exactly one bin can round down)
     w = velocity_posterior(sxy, slp, lattice).exp()
     assert torch.allclose(fine.double(), (w[..., None] * sxy).sum(2), atol=1e-5)
+
+
+def test_each_mode_of_the_split_cells_holds_its_cells_mass_at_its_own_sub_cell_mean():
+    # Two modes 10 m apart. The cells put 0.8 on the far one; the sub-cell beam lost it (its paths
+    # all pass the near cells), so its mean over all split cells lies in the near mode.
+    cells = np.array([[0.0, 0.0], [1.0, 0.0], [10.0, 0.0], [11.0, 0.0]])[None, None]  # (1, 1, 4, 2) m
+    p = np.array([0.1, 0.1, 0.4, 0.4])[None, None]
+    top = np.arange(4)[None, None]
+    offsets = np.array([[-0.25, 0.0], [0.25, 0.0]])  # two lattice points per cell, grid units
+    points = (cells[:, :, :, None] + offsets).reshape(1, 1, 8, 2)
+    w = np.array([0.3, 0.2, 0.25, 0.25, 0, 0, 0, 0])[None, None]
+    shift = np.zeros((1, 1, 2))
+    near = (w[0, 0, :, None] * points[0, 0]).sum(0)  # (0.45, 0)
+    whole = _mode_means(p, cells, top, w, points, shift, 1.0, math.inf)
+    np.testing.assert_allclose(whole[0, 0], near)  # one mode: all the mass at the beam's mean
+    modes = _mode_means(p, cells, top, w, points, shift, 1.0, 1.0)
+    np.testing.assert_allclose(modes[0, 0], 0.2 * near + 0.4 * cells[0, 0, 2] + 0.4 * cells[0, 0, 3])
+    # where the beam holds the far mode too, each mode's mass goes to its own sub-cell mean
+    w2 = np.array([0.3, 0.2, 0.25, 0.25, 0.0, 0.0, 0.0, 0.0]) + np.array([0, 0, 0, 0, 0.1, 0.1, 0.1, 0.1])
+    w2 = (w2 / w2.sum())[None, None]
+    far = (w2[0, 0, 4:, None] * points[0, 0, 4:]).sum(0) / w2[0, 0, 4:].sum()
+    near2 = (w2[0, 0, :4, None] * points[0, 0, :4]).sum(0) / w2[0, 0, :4].sum()
+    np.testing.assert_allclose(_mode_means(p, cells, top, w2, points, shift + 0.5, 2.0, 2.0)[0, 0],
+                               2.0 * (0.2 * (near2 + 0.5) + 0.8 * (far + 0.5)))  # fmt: skip
+
+
+def test_a_user_whose_sub_cell_beam_keeps_one_mode_is_placed_as_before():
+    # walkers' candidates near their tracks: the split cells of a step are one chained mode
+    tr = toy_sequence_set(64, 6, seed=0)
+    lattice = MotionTable.lattice().fit(snap_to_lattice(tr.positions - tr.grid_xy.min(0)))
+    xy, score = _candidates(B=2, T=4, S=4)
+    xy = torch.round(xy * 0.2)  # grid points of a 1 m grid, within a few metres of each other
+    runs = [
+        CandidateFilter(MOTION, lattice, 1.0, k=4, beam=16, fine_k=4, fine_beam=512, mode_chain=c).run(
+            xy, score
+        )
+        for c in (math.inf, 4.0, 0.0)
+    ]
+    (_, _, whole), (_, _, chained), (_, _, apart) = (f.smooth() for f in runs)
+    assert torch.allclose(chained, whole, atol=1e-5)
+    assert not torch.allclose(apart, whole, atol=1e-3)  # cells apart: the cells' own mass counts
+    with pytest.raises(ValueError, match="mode_chain"):
+        CandidateFilter(MOTION, lattice, mode_chain=float("nan"))
 
 
 def test_a_prefix_never_sees_the_steps_after_it():

@@ -57,6 +57,7 @@ __all__ = [
     "FILTER_CANDIDATES",
     "FINE_BEAM",
     "FINE_CELLS",
+    "MODE_CHAIN",
     "VAGUE_GATE",
     "CandidateFilter",
 ]
@@ -65,6 +66,11 @@ BEAM = 512  # pairs of cell candidates kept per step
 FINE_CELLS = 8  # cells per step split into sub-cells (more than the offline smoother's 6: it
 # chooses them by the filtered marginal, which knows less than the smoothed one)
 FINE_BEAM = 512  # pairs of sub-cell points kept per step
+# Split cells within this many grid steps of each other (chained) form one mode of a step's
+# sub-cell positions: a mode holds its cells' smoothed mass, placed at the sub-cell beam's mean
+# within it (see _mode_means). One step joins neighbours and leaves an alias apart; 1 to 3 steps
+# moved all kinds by -0.8 to -0.5 % (docs/estimation.md).
+MODE_CHAIN = 1.0
 # Candidates per step a grid-reading network's filter carries where the network reads fewer
 # (``tn-match`` reads 48): a driver's true cell, 5 to 11 m from the last one, is often ranked
 # below the 48th by the pruning's random walks, and the stages after it cannot bring it back.
@@ -343,6 +349,11 @@ class CandidateFilter:
         Indices into ``alternative`` of models whose paths the memory does not weigh: motion at
         speeds the training users did not keep (the speed-scaled tables), whose lattice
         patterns the memory, measured at the training users' speeds, never saw.
+    mode_chain : float
+        Grid steps (default :data:`MODE_CHAIN`): split cells this close, or chained by such
+        links, are one mode of a step; :meth:`smooth` gives each mode its cells' smoothed mass at
+        the sub-cell mean within it, for users no faster than the cell model's place table's
+        speed. ``math.inf``: one mode, the sub-cell beam's mean over all split cells.
     """
 
     def __init__(
@@ -362,8 +373,12 @@ class CandidateFilter:
         memory: MotionMemory | None = None,
         memory_paths: int = MEMORY_PATHS,
         memory_skips: tuple[int, ...] = (),
+        mode_chain: float = MODE_CHAIN,
     ):
         self.k, self.fine_k, self.spacing = int(k), int(fine_k), float(spacing)
+        if not mode_chain >= 0:
+            raise ValueError(f"mode_chain must be >= 0 grid steps, got {mode_chain}")
+        self.mode_chain = float(mode_chain)
         if max(self.k, self.fine_k * int(n_sub) ** 2) > MAX_CANDIDATES:
             raise ValueError(
                 f"k = {k} candidates and fine_k * n_sub^2 = {fine_k * n_sub**2} lattice points: a beam "
@@ -589,12 +604,77 @@ class CandidateFilter:
             # were chosen before the later steps were seen; the smoothed mass of the other cells
             # (an alias the first fingerprint preferred, say) keeps its cell-level mean.
             w = np.exp(fines[n])
-            sub = (w[..., None] * h.fine.points(T)).sum(2)
+            shift = np.zeros((len(w), T, 2))
             if remember and T >= 4:
-                sub = sub + self._memory_shift(h.fine, T, np.flatnonzero(draw[:, n]), paths[n])
-            sub = torch.from_numpy(sub * self.spacing)
-            inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(np.stack(h.top[:T], 1)), 1.0)
-            mass = (p * inside).sum(-1, keepdim=True)
-            rest = (p * (1 - inside))[..., None] * xy
-            out.append((p, mass * sub + rest.sum(2)))
+                shift = self._memory_shift(h.fine, T, np.flatnonzero(draw[:, n]), paths[n])
+            top = np.stack(h.top[:T], 1)
+            inside = torch.zeros_like(p).scatter_(2, torch.from_numpy(top), 1.0)
+            rest = ((p * (1 - inside))[..., None] * xy).sum(2)
+            sub = ((w[..., None] * h.fine.points(T)).sum(2) + shift) * self.spacing
+            whole = (p * inside).sum(-1, keepdim=True) * torch.from_numpy(sub) + rest
+            # A sub-cell path must pass a split cell at every step: where one step's split left
+            # out the cell of a mode the later steps favour, the sub-cell beam loses that mode
+            # although the cells keep it. Its mass then stays with the mode, not with the other's
+            # mean. Drivers (faster than the place tables' speed) keep the sub-cell beam's split
+            # between modes: their lanes make it the sharper.
+            if math.isinf(self.mode_chain):
+                out.append((p, whole))
+                continue
+            chain = self.mode_chain * self.spacing
+            modes = torch.from_numpy(
+                _mode_means(p.numpy(), xy.numpy(), top, w, h.fine.points(T), shift, self.spacing, chain)
+            )
+            fast = (whole[:, 1:] - whole[:, :-1]).norm(dim=-1).mean(-1) > float(self.cells.m.place[0])
+            out.append((p, torch.where(fast[:, None, None], whole, modes + rest)))
         return out
+
+
+def _mode_means(
+    p: np.ndarray,
+    xy: np.ndarray,
+    top: np.ndarray,
+    w: np.ndarray,
+    points: np.ndarray,
+    shift: np.ndarray,
+    spacing: float,
+    chain: float,
+) -> np.ndarray:
+    """The smoothed mass of the split cells, each mode's at the sub-cell beam's mean within it.
+
+    Parameters
+    ----------
+    p : (B, T, K) smoothed cell marginals.
+    xy : (B, T, K, 2) the cells, metres.
+    top : (B, T, F) the cells split at each step (indices into ``K``).
+    w : (B, T, F n) smoothed sub-cell marginals, ``n`` lattice points per split cell in the order
+        of ``top``.
+    points : (B, T, F n, 2) those lattice points, grid units.
+    shift : (B, T, 2) grid units added to every sub-cell mean (the acceleration memory's).
+    spacing : the grid step, metres.
+    chain : metres; split cells this close are one mode, and so are cells chained by such links.
+
+    Returns
+    -------
+    (B, T, 2) metres: the sum over modes of the mode's cell mass times its sub-cell mean; a mode
+    where the sub-cell beam holds no mass gives its cells' mass times their positions.
+    """
+    B, T, F = top.shape
+    pc = np.take_along_axis(p, top, 2)
+    cxy = np.take_along_axis(xy, top[..., None], 2)
+    near = np.linalg.norm(cxy[:, :, :, None] - cxy[:, :, None], axis=-1) <= chain * (1 + 1e-6)
+    label = np.broadcast_to(np.arange(F), (B, T, F)).copy()
+    for _ in range(F - 1):  # the smallest cell index each cell reaches through the chain
+        label = np.where(near, label[:, :, None, :], F).min(-1)
+    same = (label[:, :, :, None] == label[:, :, None, :]).astype(np.float64)  # (B, T, F, F)
+    wc = w.reshape(B, T, F, -1)
+    mass_fine = wc.sum(-1)
+    sum_fine = (wc[..., None] * points.reshape(*wc.shape, 2)).sum(3)
+    mode_p = np.einsum("btij,btj->bti", same, pc)
+    mode_w = np.einsum("btij,btj->bti", same, mass_fine)
+    mode_sum = np.einsum("btij,btjd->btid", same, sum_fine)
+    mode_cells = np.einsum("btij,btjd->btid", same, pc[..., None] * cxy)
+    held = mode_w > 1e-12
+    mean = (mode_sum / np.where(held, mode_w, 1.0)[..., None] + shift[:, :, None]) * spacing
+    each = np.where(held[..., None], mode_p[..., None] * mean, mode_cells)
+    first = (label == np.arange(F))[..., None]  # one cell stands for its mode
+    return (first * each).sum(2)

@@ -34,6 +34,7 @@ import math
 import numpy as np
 import torch
 
+from mmwsim._jit import njit
 from mmwsim._threads import batch_map
 
 from ..matching import GUIDE
@@ -658,23 +659,52 @@ def _mode_means(
     (B, T, 2) metres: the sum over modes of the mode's cell mass times its sub-cell mean; a mode
     where the sub-cell beam holds no mass gives its cells' mass times their positions.
     """
+    p, xy, w, points, shift = (np.asarray(a, np.float64) for a in (p, xy, w, points, shift))
+    top = np.asarray(top, np.int64)
+    return _mode_means_kernel(p, xy, top, w, points, shift, float(spacing), float(chain) * (1 + 1e-6))
+
+
+@njit(cache=True, nogil=True)
+def _mode_means_kernel(p, xy, top, w, points, shift, spacing, chain):
     B, T, F = top.shape
-    pc = np.take_along_axis(p, top, 2)
-    cxy = np.take_along_axis(xy, top[..., None], 2)
-    near = np.linalg.norm(cxy[:, :, :, None] - cxy[:, :, None], axis=-1) <= chain * (1 + 1e-6)
-    label = np.broadcast_to(np.arange(F), (B, T, F)).copy()
-    for _ in range(F - 1):  # the smallest cell index each cell reaches through the chain
-        label = np.where(near, label[:, :, None, :], F).min(-1)
-    same = (label[:, :, :, None] == label[:, :, None, :]).astype(np.float64)  # (B, T, F, F)
-    wc = w.reshape(B, T, F, -1)
-    mass_fine = wc.sum(-1)
-    sum_fine = (wc[..., None] * points.reshape(*wc.shape, 2)).sum(3)
-    mode_p = np.einsum("btij,btj->bti", same, pc)
-    mode_w = np.einsum("btij,btj->bti", same, mass_fine)
-    mode_sum = np.einsum("btij,btjd->btid", same, sum_fine)
-    mode_cells = np.einsum("btij,btjd->btid", same, pc[..., None] * cxy)
-    held = mode_w > 1e-12
-    mean = (mode_sum / np.where(held, mode_w, 1.0)[..., None] + shift[:, :, None]) * spacing
-    each = np.where(held[..., None], mode_p[..., None] * mean, mode_cells)
-    first = (label == np.arange(F))[..., None]  # one cell stands for its mode
-    return (first * each).sum(2)
+    n = w.shape[2] // F
+    out = np.zeros((B, T, 2))
+    label = np.empty(F, np.int64)
+    for b in range(B):
+        for t in range(T):
+            # the smallest split cell each one reaches through links of at most `chain`
+            for i in range(F):
+                label[i] = i
+            changed = True
+            while changed:
+                changed = False
+                for i in range(F):
+                    xi, yi = xy[b, t, top[b, t, i], 0], xy[b, t, top[b, t, i], 1]
+                    for j in range(F):
+                        if label[j] < label[i]:
+                            dx, dy = xy[b, t, top[b, t, j], 0] - xi, xy[b, t, top[b, t, j], 1] - yi
+                            if dx * dx + dy * dy <= chain * chain:
+                                label[i] = label[j]
+                                changed = True
+            for m in range(F):
+                if label[m] != m:
+                    continue
+                mass = fine = sx = sy = cx = cy = 0.0
+                for i in range(F):
+                    if label[i] != m:
+                        continue
+                    c = top[b, t, i]
+                    mass += p[b, t, c]
+                    cx += p[b, t, c] * xy[b, t, c, 0]
+                    cy += p[b, t, c] * xy[b, t, c, 1]
+                    for j in range(i * n, (i + 1) * n):
+                        fine += w[b, t, j]
+                        sx += w[b, t, j] * points[b, t, j, 0]
+                        sy += w[b, t, j] * points[b, t, j, 1]
+                if fine > 1e-12:
+                    out[b, t, 0] += mass * (sx / fine + shift[b, t, 0]) * spacing
+                    out[b, t, 1] += mass * (sy / fine + shift[b, t, 1]) * spacing
+                else:
+                    out[b, t, 0] += cx
+                    out[b, t, 1] += cy
+    return out

@@ -222,6 +222,9 @@ def test_each_mode_of_the_split_cells_holds_its_cells_mass_at_its_own_sub_cell_m
     np.testing.assert_allclose(whole[0, 0], near)  # one mode: all the mass at the beam's mean
     modes = _mode_means(p, cells, top, w, points, shift, 1.0, 1.0)
     np.testing.assert_allclose(modes[0, 0], 0.2 * near + 0.4 * cells[0, 0, 2] + 0.4 * cells[0, 0, 3])
+    # sharpened: the shares go as the masses squared, 0.04 : 0.64
+    sharp = _mode_means(p, cells, top, w, points, shift, 1.0, 1.0, 2.0)
+    np.testing.assert_allclose(sharp[0, 0], (0.04 * near + 0.64 * np.array([10.5, 0.0])) / 0.68)
     # where the beam holds the far mode too, each mode's mass goes to its own sub-cell mean
     w2 = np.array([0.3, 0.2, 0.25, 0.25, 0.0, 0.0, 0.0, 0.0]) + np.array([0, 0, 0, 0, 0.1, 0.1, 0.1, 0.1])
     w2 = (w2 / w2.sum())[None, None]

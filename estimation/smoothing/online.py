@@ -10,7 +10,9 @@ only the steps so far:
    pairs (:mod:`estimation.smoothing.beam`);
 3. sub-cells: the ``fine_k`` most likely cells of the step (by stage 2's filtered marginal) split
    into ``n_sub x n_sub`` lattice points, and the same beam over those with the lattice's motion
-   table.
+   table. The smoothed positions give each mode of the split cells its share of the cells'
+   smoothed mass at the sub-cell mean within it: the split was chosen before the later steps
+   were seen, and the sub-cell beam may have lost a mode the cells keep.
 
 Stages 2 and 3 run once per motion model: with alternative models (``tn-match`` adds the
 measured tables' :meth:`~estimation.smoothing.motion.MotionTable.broadened` copy and tables for
@@ -71,12 +73,12 @@ FINE_BEAM = 512  # pairs of sub-cell points kept per step
 # Split cells within this many grid steps of each other (chained) form one mode of a step's
 # sub-cell positions: a mode holds its cells' smoothed mass, placed at the sub-cell beam's mean
 # within it (see _mode_means). One step joins neighbours and leaves an alias apart; 1 to 3 steps
-# moved all kinds by -0.8 to -0.5 % (docs/estimation.md).
+# moved all kinds by -0.8 to -0.5 % on the draws they were chosen on (docs/estimation.md).
 MODE_CHAIN = 1.0
 # The modes' shares of the split cells' mass go as their masses squared: toward the larger mode.
 # A track's RMSE is lower at a mode that holds more than half the mass than at the mean of the
 # modes, which lies off both; squared shares moved all kinds by -0.3 +- 0.1 % (powers 2 to 8
-# alike; docs/estimation.md).
+# alike). Both together: -0.4 % on fresh draws, pedestrians -0.7 % (docs/estimation.md).
 MODE_SHARPEN = 2.0
 # Candidates per step a grid-reading network's filter carries where the network reads fewer
 # (``tn-match`` reads 48): a driver's true cell, 5 to 11 m from the last one, is often ranked

@@ -253,6 +253,25 @@ def test_a_user_whose_sub_cell_beam_keeps_one_mode_is_placed_as_before():
         CandidateFilter(MOTION, lattice, mode_chain=float("nan"))
 
 
+def test_a_driver_that_stops_keeps_the_sub_cell_beams_split_between_modes():
+    # steps of 8, 0, 0, 8, 8 m: a mean of 4.8 below the place table's 5.5 per step, a median above
+    x = np.cumsum([0.0, 8.0, 0.0, 0.0, 8.0, 8.0])
+    driver = np.stack([x, 0.5 * x], -1)[None]
+    placed = (
+        MotionTable().fit(_tracks()).fit_place(_tracks(), (-60.0, -60.0), 2.0, (60, 60), speed=5.5, floor=0.3)
+    )
+    lattice = MotionTable.lattice().fit(snap_to_lattice(_tracks()))
+
+    def fine(true, chain):
+        xy, score = _candidates(B=1, T=6, S=8, true=true)
+        f = CandidateFilter(placed, lattice, 1.0, k=8, beam=64, fine_k=4, fine_beam=512, mode_chain=chain)
+        return f.run(xy, score).smooth()[2]
+
+    assert torch.equal(fine(driver, 0.0), fine(driver, math.inf))
+    walker = driver * 0.2  # the same track at 1.6 m per step: placed by modes
+    assert not torch.allclose(fine(walker, 0.0), fine(walker, math.inf), atol=1e-3)
+
+
 def test_a_prefix_never_sees_the_steps_after_it():
     xy, score = _candidates(T=19)
     # 19 steps: the stored steps outgrow their first buffers (8 steps) twice

@@ -636,7 +636,10 @@ class CandidateFilter:
                     p.numpy(), xy.numpy(), top, w, h.fine.points(T), shift, self.spacing, chain, MODE_SHARPEN
                 )
             )
-            fast = (whole[:, 1:] - whole[:, :-1]).norm(dim=-1).mean(-1) > float(self.cells.m.place[0])
+            # the median step: a driver that stops is still a driver, a walker whose mean jumps
+            # between modes once is still a walker
+            steps = (whole[:, 1:] - whole[:, :-1]).norm(dim=-1)
+            fast = (steps.median(-1).values if T > 1 else steps.sum(-1)) > float(self.cells.m.place[0])
             out.append((p, torch.where(fast[:, None, None], whole, modes + rest)))
         return out
 

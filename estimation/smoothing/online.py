@@ -362,8 +362,8 @@ class CandidateFilter:
         Grid steps (default :data:`MODE_CHAIN`): split cells this close, or chained by such
         links, are one mode of a step; :meth:`smooth` gives each mode a share of the split
         cells' smoothed mass by its own (:data:`MODE_SHARPEN`) at the sub-cell mean within it, for
-        users no faster than the cell model's place table's speed. ``math.inf``: one mode, the
-        sub-cell beam's mean over all split cells.
+        users whose median step is no longer than the cell model's place table's speed.
+        ``math.inf``: one mode, the sub-cell beam's mean over all split cells.
     """
 
     def __init__(
@@ -625,8 +625,8 @@ class CandidateFilter:
             # A sub-cell path must pass a split cell at every step: where one step's split left
             # out the cell of a mode the later steps favour, the sub-cell beam loses that mode
             # although the cells keep it. Its mass then stays with the mode, not with the other's
-            # mean. Drivers (faster than the place tables' speed) keep the sub-cell beam's split
-            # between modes: their lanes make it the sharper.
+            # mean. Drivers (a median step longer than the place tables' speed) keep the sub-cell
+            # beam's split between modes: their lanes make it the sharper.
             if math.isinf(self.mode_chain):
                 out.append((p, whole))
                 continue

@@ -637,9 +637,11 @@ class CandidateFilter:
                 )
             )
             # the median step: a driver that stops is still a driver, a walker whose mean jumps
-            # between modes once is still a walker
+            # between modes once is still a walker (one step: no driver); the place tables' speed
+            # is the measured model's, metres per step
             steps = (whole[:, 1:] - whole[:, :-1]).norm(dim=-1)
-            fast = (steps.median(-1).values if T > 1 else steps.sum(-1)) > float(self.cells.m.place[0])
+            median = steps.median(-1).values if T > 1 else torch.zeros(len(whole), dtype=steps.dtype)
+            fast = median > float(self.cells.m.place[0])
             out.append((p, torch.where(fast[:, None, None], whole, modes + rest)))
         return out
 
@@ -706,34 +708,34 @@ def _mode_means_kernel(p, xy, top, w, points, shift, spacing, chain, sharpen):
                             if dx * dx + dy * dy <= chain * chain:
                                 label[i] = label[j]
                                 changed = True
-            total = 0.0
-            norm = 0.0
+            # per mode: cell mass, cells' mass-weighted x and y, sub-cell mass, its weighted x and y
+            total = norm = 0.0
             for m in range(F):
                 acc[m, :] = 0.0
                 if label[m] != m:
                     continue
                 for i in range(F):
-                    if label[i] != m:
-                        continue
-                    c = top[b, t, i]
-                    acc[m, 0] += p[b, t, c]
-                    acc[m, 4] += p[b, t, c] * xy[b, t, c, 0]
-                    acc[m, 5] += p[b, t, c] * xy[b, t, c, 1]
-                    for j in range(i * n, (i + 1) * n):
-                        acc[m, 1] += w[b, t, j]
-                        acc[m, 2] += w[b, t, j] * points[b, t, j, 0]
-                        acc[m, 3] += w[b, t, j] * points[b, t, j, 1]
+                    if label[i] == m:
+                        c = top[b, t, i]
+                        acc[m, 0] += p[b, t, c]
+                        acc[m, 1] += p[b, t, c] * xy[b, t, c, 0]
+                        acc[m, 2] += p[b, t, c] * xy[b, t, c, 1]
+                        for j in range(i * n, (i + 1) * n):
+                            acc[m, 3] += w[b, t, j]
+                            acc[m, 4] += w[b, t, j] * points[b, t, j, 0]
+                            acc[m, 5] += w[b, t, j] * points[b, t, j, 1]
                 total += acc[m, 0]
                 norm += acc[m, 0] ** sharpen
             for m in range(F):
-                if label[m] != m or acc[m, 0] <= 0.0:
-                    continue
                 mass = acc[m, 0]
-                q = total * mass**sharpen / norm / mass  # the mode's share of the mass, sharpened
-                if acc[m, 1] > 1e-12:
-                    out[b, t, 0] += q * mass * (acc[m, 2] / acc[m, 1] + shift[b, t, 0]) * spacing
-                    out[b, t, 1] += q * mass * (acc[m, 3] / acc[m, 1] + shift[b, t, 1]) * spacing
-                else:
-                    out[b, t, 0] += q * acc[m, 4]
-                    out[b, t, 1] += q * acc[m, 5]
+                if label[m] != m or mass <= 0.0:
+                    continue
+                share = total * mass**sharpen / norm
+                if acc[m, 3] > 1e-12:  # at the sub-cell mean
+                    x = (acc[m, 4] / acc[m, 3] + shift[b, t, 0]) * spacing
+                    y = (acc[m, 5] / acc[m, 3] + shift[b, t, 1]) * spacing
+                else:  # a mode the sub-cell beam lost: at its cells' mean
+                    x, y = acc[m, 1] / mass, acc[m, 2] / mass
+                out[b, t, 0] += share * x
+                out[b, t, 1] += share * y
     return out

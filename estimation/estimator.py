@@ -26,7 +26,8 @@ from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
-from .smoothing.motion import POOLED_SPEED, MixtureMotion, MotionTable
+from .smoothing.line import LINE_MIN_STEPS, line_track, line_weight
+from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
 from .smoothing.route import route_track
 
@@ -260,6 +261,13 @@ class Estimator(nn.Module):
         (:func:`~estimation.smoothing.route.route_track`: arc length and speed, by the speeds
         measured on the training users) before they are returned or forecast (default True;
         only where :attr:`street_lanes` gives the lanes and the model measured those speeds).
+    line_tracking : bool
+        Whether a grid-reading network's tracks of users who walk (a median step no longer than
+        the place tables' speed) of at least :data:`~estimation.smoothing.line.LINE_MIN_STEPS`
+        steps are mixed with their straight-line tracks at the speeds measured on the training
+        users (:func:`~estimation.smoothing.line.line_track`), each by how well a straight line
+        explains its steps, before they are returned (default True; only where the model
+        measured those speeds). :meth:`OnlineTracker.update`'s current positions do not.
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
@@ -271,6 +279,7 @@ class Estimator(nn.Module):
         self.lane_forecast = True
         self.street_forecast = True
         self.route_tracking = True
+        self.line_tracking = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
         self._broadened: tuple[tuple, tuple] | None = None  # (tables' stamp, their broadened copies)
         self._steady: tuple[tuple, tuple | None] | None = None  # (stamp, _steady_motion's tables)
@@ -567,13 +576,35 @@ class Estimator(nn.Module):
         out = torch.cat(parts) if len(parts) != 1 else parts[0]
         if lanes:
             return self.forecast(self._along_routes(out, x), self.config.horizon).float()
-        return self._along_routes(out, x) if self.uses_grid and not forecasting else out
+        return self._along_lines(self._along_routes(out, x), x) if self.uses_grid and not forecasting else out
 
     def _along_routes(self, tracked: torch.Tensor, x: Any) -> torch.Tensor:
         """``tracked (B, T, 2)`` metres with the users who drive along the attached street map
         smoothed along their routes (:attr:`route_tracking`), from the candidates of the
         inputs ``x``; as it is where that does not apply."""
         return self._route_tracks(tracked, x[0], x[1][..., 0])
+
+    def _along_lines(self, tracked: torch.Tensor, x: Any) -> torch.Tensor:
+        """``tracked (B, T, 2)`` metres with each user who walks mixed with its straight-line
+        track (:attr:`line_tracking`) by the line's weight
+        (:func:`~estimation.smoothing.line.line_weight`), from the candidates of the inputs
+        ``x``; as it is where that does not apply."""
+        fine = self.net.motion_fine
+        if not self.line_tracking or not len(fine.walk_speeds) or tracked.shape[1] < LINE_MIN_STEPS:
+            return tracked
+        step = float(self.net.grid_step)
+        walking = float(fine.place_speed) * step
+        t = tracked.double().numpy()
+        typical = np.median(np.linalg.norm(np.diff(t, axis=1), axis=-1), axis=1)
+        walk = np.flatnonzero(typical <= (walking if math.isfinite(walking) else PLACE_SPEED))
+        if not len(walk):
+            return tracked
+        xy, lp = np.asarray(x[0], np.float64)[walk], np.asarray(x[1][..., 0], np.float64)[walk]
+        line, delta = line_track(t[walk], xy, lp, fine.walk_speeds.numpy(), step)
+        w = line_weight(delta)[:, None, None]
+        out = tracked.clone()
+        out[torch.from_numpy(walk)] = torch.from_numpy(w * line + (1 - w) * t[walk]).to(out.dtype)
+        return out
 
     def _route_tracks(self, tracked: torch.Tensor, xy: Any, lp: Any) -> torch.Tensor:
         """:meth:`_along_routes` from the steps' candidates ``xy (B, T, k, 2)`` metres and their

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from mmwsim import Dataset
 from mmwsim.cli import main
 from mmwsim.demo import MODEL
 from mmwsim.trajectories import read_trajectories
+from mmwsim.trajectories.motion import KINDS
 from tests.helpers.rrd import blueprint_count, check_blueprint, entity_rows
 
 pytestmark = pytest.mark.slow
@@ -159,6 +161,36 @@ def test_floor_gap_benchmark_reads_the_demo(demo, capsys):
         ours, floor = (float(v) for v in re.findall(r"(?:tn-match|oracle) (\d+\.\d+)", line))
         assert floor > 0 and f"({ours / floor:.2f}x" in line
     assert "a step over 2 m off" in out and " event: " in out
+    # over the kinds: their errors weighed by the test set's shares, the ratio inside its interval
+    per = [
+        [float(v) for v in re.findall(r"(?:tn-match|oracle) (\d+\.\d+)", x)]
+        for x in out.splitlines()
+        if x.startswith(("pedestrian (", "vehicle ("))
+    ]
+    line = next(x for x in out.splitlines() if x.startswith("the kinds at the test set's shares (4/4 users)"))
+    ours, floor, ratio, lo, hi = (float(v) for v in re.findall(r"(\d+\.\d+)", line))
+    test = read_trajectories(Dataset.open(data), "test")
+    share = np.array(
+        [(~test.holdout & (test.kind == KINDS.index(k))).sum() for k in ("pedestrian", "vehicle")]
+    )
+    share = share / share.sum()
+    assert abs(ours - share @ [p[0] for p in per]) < 1e-3 and abs(floor - share @ [p[1] for p in per]) < 1e-3
+    assert lo <= ratio <= hi
+    # --skip passes over the first users: other users, other errors
+    ours_of = {}
+    for skip in ("0", "2"):
+        assert floor_gap.main([run, data, "--n", "2", "--skip", skip, "--kinds", "pedestrian,vehicle"]) == 0
+        line = next(
+            x
+            for x in capsys.readouterr().out.splitlines()
+            if x.startswith("the kinds at") and "(2/2 users)" in x
+        )
+        ours_of[skip] = line.split(": ")[1].split(",")[0]
+    assert ours_of["0"] != ours_of["2"]
+    # a model at exactly twice the floor for every user has no spread in its ratio
+    r0 = np.array([0.3, 0.5, 1.0])
+    pairs = [(2 * r0, r0, 3.0), (4 * r0[:2], 2 * r0[:2], 1.0)]
+    assert floor_gap._ratio_interval(pairs) == pytest.approx((2.0, 2.0))
     with pytest.raises(SystemExit) as e:
         floor_gap.main([run, data, "--kinds", "bicycle"])
     assert e.value.code == 2 and "bicycle" in capsys.readouterr().err

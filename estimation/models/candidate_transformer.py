@@ -167,6 +167,7 @@ class CandidateTransformer(nn.Module):
         self.motion.fit(on_grid)
         u = snap_to_lattice((p - lo) / spacing)  # grid units from the first grid point
         self.motion_fine.fit(u)
+        self.motion_fine.fit_walks((p - lo) / spacing, PLACE_SPEED / spacing)
         self.memory = MotionMemory()
         if p.shape[1] >= 4:
             self.memory.fit(u)

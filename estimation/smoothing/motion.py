@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .line import walk_speeds
 from .route import ROUTE_BINS
 
 __all__ = [
@@ -248,6 +249,10 @@ class MotionTable(nn.Module):
         # smoothing).
         self.register_buffer("route_speeds", torch.zeros(0, dtype=torch.float64))
         self.register_buffer("route_change", torch.tensor(0.0, dtype=torch.float64))
+        # How fast the other moving users walk (fit_walks), for the straight-line pass: the share
+        # of their steps per length, in bins of 1 / LINE_BINS of the table's unit; none until
+        # measured (no such pass).
+        self.register_buffer("walk_speeds", torch.zeros(0, dtype=torch.float64))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         if prefix + "fitted" not in state_dict:
@@ -258,6 +263,7 @@ class MotionTable(nn.Module):
         # place tables existed has none (no place preference).
         for name in (
             "place_speed", "log_place", "place_origin", "place_res", "restart_step", "route_speeds", "route_change",
+            "walk_speeds",
         ):  # fmt: skip
             key = prefix + name
             if key in state_dict:
@@ -346,6 +352,20 @@ class MotionTable(nn.Module):
         pair = alike | ~both
         changed = (np.abs(np.diff(drives, axis=1)) > 1)[pair]
         self.route_change = torch.tensor(float(changed.mean()) if changed.size else 0.0, dtype=torch.float64)
+        return self
+
+    @torch.no_grad()
+    def fit_walks(self, positions: np.ndarray, speed: float) -> MotionTable:
+        """Measure how fast the users who walk move, on trajectories ``positions (n, L >= 2, 2)``
+        as they are (not snapped), in the table's units: ``walk_speeds``, the share of the steps
+        longer than half a unit of users whose median step is at most ``speed`` (the drivers are
+        :meth:`fit_drives`'s), per length in bins of ``1 / LINE_BINS`` of the unit (what
+        :func:`~estimation.smoothing.line.line_track` weighs its lines by). Empty where there is
+        no such step. Returns ``self``."""
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim == 3 and not np.isfinite(p).all():
+            raise ValueError("positions hold NaN or infinite values")
+        self.walk_speeds = torch.from_numpy(walk_speeds(p, speed))
         return self
 
     @torch.no_grad()

@@ -1,0 +1,228 @@
+"""Tracks of users who walk a straight line at one of the measured speeds.
+
+A walker or cyclist who keeps its heading and speed over a sequence crosses cell boundaries at
+times that pin down where along the line it is, as a vernier does, to far below the grid
+spacing, but only for a model that knows the speed: the training users keep a handful of exact
+speeds (the generator's, or any population's habits), which a lattice of a third of a cell
+blurs. :func:`line_track` weighs, for each user, straight lines at constant speed around a
+least-squares line through its track: every line by the measured prior of its speed (in bins of
+1 / :data:`LINE_BINS` of the grid spacing) times the fingerprint likelihood of the candidate
+grid points it passes at each step. The lines' posterior mean is the straight-line track.
+
+How far to believe it is the evidence: ``delta``, the log of the lines' mean likelihood less the
+best candidates' at every step (how much the straight line costs against following the best
+candidate each step). A user who turns or changes speed within the sequence finds no line
+through its candidates and ``delta`` drops by tens of nats. The caller mixes the two tracks by
+``sigmoid((delta - LINE_SHIFT) / LINE_SCALE)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from mmwsim._threads import batch_map
+
+__all__ = ["LINE_BINS", "LINE_MIN_STEPS", "line_track", "line_weight", "walk_speeds"]
+
+LINE_BINS = 20
+"""Bins of the measured speeds per grid spacing per step (5 cm on a 1 m grid)."""
+LINE_MIN_STEPS = 4
+"""Sequences shorter than this are left as they are: three cells leave a line too free."""
+LINE_LINES = 4096
+"""Lines weighed per user (a fixed quasi-random set of offsets: the same for every user)."""
+LINE_REACH = 0.75
+"""Grid spacings the lines' centre (the track's middle step) may lie from the fitted line's."""
+LINE_TURN = 0.3
+"""Radians the lines' heading may differ from the fitted line's."""
+LINE_SPEEDS = 0.6
+"""Grid spacings per step: the measured speeds weighed lie this near the fitted line's."""
+LINE_SHIFT = -10.0
+"""Nats of ``delta`` at which the straight-line track takes half the weight (see the module)."""
+LINE_SCALE = 3.0
+"""Nats of ``delta`` over which its weight goes from a quarter to three quarters / log 3."""
+_MIN_STEP = 0.5  # grid spacings per step: a slower user (a static one, or a stop) is left alone
+
+
+def walk_speeds(positions: np.ndarray, max_step: float) -> np.ndarray:
+    """The share of the steps of users who walk, per length in bins of ``1 / LINE_BINS`` of the
+    positions' unit: ``(V,)`` float64 over bins ``0..V-1``, summing to 1 (empty where no such
+    step).
+
+    Measured on trajectories ``positions (n, L >= 2, 2)`` as they are (not snapped), in grid
+    spacings: the steps longer than half a spacing of users whose median step is at most
+    ``max_step`` (the place tables' speed: the drivers are the route pass's)."""
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
+        raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
+    step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
+    s = step[np.median(step, axis=1) <= max_step]
+    s = s[s > _MIN_STEP]
+    if not s.size:
+        return np.zeros(0)
+    counts = np.bincount(np.rint(s * LINE_BINS).astype(np.int64))
+    return counts / counts.sum()
+
+
+def line_weight(delta: np.ndarray) -> np.ndarray:
+    """The straight-line track's weight ``(B,)`` in ``[0, 1]`` for its ``delta (B,)`` nats."""
+    z = (np.asarray(delta, dtype=np.float64) - LINE_SHIFT) / LINE_SCALE
+    return 0.5 * (1.0 + np.tanh(0.5 * np.clip(z, -60.0, 60.0)))
+
+
+def _offsets(n: int) -> np.ndarray:
+    """``(n, 4)`` points of the additive recurrence in ``[0, 1)^4`` (Roberts' R4 sequence): spread
+    evenly, and the same on every call."""
+    g = 1.0
+    for _ in range(50):  # the plastic-like root of x^5 = x + 1
+        g = (1.0 + g) ** 0.2
+    alpha = np.array([g ** -(i + 1) for i in range(4)])
+    return np.mod(0.5 + np.arange(1, n + 1)[:, None] * alpha, 1.0)
+
+
+_OFFSETS = _offsets(LINE_LINES)
+
+
+def line_track(
+    tracked: np.ndarray, xy: np.ndarray, lp: np.ndarray, speeds: np.ndarray, spacing: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-line tracks of every user and their evidence (see the module's text).
+
+    Parameters
+    ----------
+    tracked : (B, T, 2) float, metres
+        The smoother's (or network's) track; the lines lie around its least-squares line.
+    xy : (B, T, K, 2) float, metres
+        Every step's candidate grid points.
+    lp : (B, T, K) float
+        Their log-likelihoods, each step's normalised alike (a grid point that is no candidate
+        gets its step's lowest).
+    speeds : (V,) float
+        The measured share of steps per length bin (:func:`walk_speeds`).
+    spacing : float
+        The grid's spacing, metres.
+
+    Returns
+    -------
+    track : (B, T, 2) float64, metres
+        The lines' posterior mean; ``tracked`` where no line is weighed (a user slower than half a
+        grid spacing per step, or no measured speed near its own).
+    delta : (B,) float64
+        Nats (``-inf`` where no line is weighed).
+    """
+    tracked = np.ascontiguousarray(tracked, dtype=np.float64)
+    B, T = tracked.shape[:2]
+    if B == 0 or T < 2 or not len(speeds):
+        return tracked.copy(), np.full(B, -np.inf)
+    return batch_map(
+        _line_kernel, 3, tracked, np.ascontiguousarray(xy, np.float64), np.ascontiguousarray(lp, np.float64),
+        np.asarray(speeds, np.float64), float(spacing), _OFFSETS, LINE_REACH, LINE_TURN, LINE_SPEEDS,
+    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _line_kernel(
+    tracked, xy, lp, speeds, spacing, offsets, reach, turn, window
+):  # pragma: no cover - compiled
+    B, T, K = lp.shape
+    N = offsets.shape[0]
+    out = tracked.copy()
+    delta = np.full(B, -np.inf)
+    mid = (T - 1) / 2.0
+    ts = np.arange(T) - mid
+    tt = (ts * ts).sum()
+    bin_w = spacing / LINE_BINS
+    V = len(speeds)
+    for b in range(B):
+        # least-squares line through the track: centre at the middle step, velocity per step
+        cx, cy, vx, vy = 0.0, 0.0, 0.0, 0.0
+        for t in range(T):
+            cx += tracked[b, t, 0] / T
+            cy += tracked[b, t, 1] / T
+            vx += ts[t] * tracked[b, t, 0] / tt
+            vy += ts[t] * tracked[b, t, 1] / tt
+        s0 = np.hypot(vx, vy)
+        if s0 < _MIN_STEP * spacing:
+            continue
+        h0 = np.arctan2(vy, vx)
+        # the measured speed bins near the fitted line's
+        lo = max(int(np.floor((s0 - window * spacing) / bin_w)), 0)
+        hi = min(int(np.ceil((s0 + window * spacing) / bin_w)), V - 1)
+        n_bins = 0
+        for j in range(lo, hi + 1):
+            if speeds[j] > 0.0:
+                n_bins += 1
+        if n_bins == 0:
+            continue
+        bins = np.empty(n_bins, np.int64)
+        k = 0
+        for j in range(lo, hi + 1):
+            if speeds[j] > 0.0:
+                bins[k] = j
+                k += 1
+        # each step's candidates on a raster around the fitted line's point (its lowest elsewhere)
+        half = (
+            int(
+                np.ceil(
+                    (reach * spacing + abs(ts[0]) * (window * spacing + (s0 + window * spacing) * turn))
+                    / spacing
+                )
+            )
+            + 1
+        )
+        side = 2 * half + 1
+        raster = np.empty((T, side, side))
+        ox, oy = np.empty(T), np.empty(T)
+        best = 0.0
+        for t in range(T):
+            floor, top = np.inf, -np.inf
+            for c in range(K):
+                floor = min(floor, lp[b, t, c])
+                top = max(top, lp[b, t, c])
+            best += top
+            raster[t] = floor
+            # the raster's cell (i, j) is the grid point nearest the line's point plus (i, j) - half
+            gx = xy[b, t, 0, 0] + np.rint((cx + ts[t] * vx - xy[b, t, 0, 0]) / spacing) * spacing
+            gy = xy[b, t, 0, 1] + np.rint((cy + ts[t] * vy - xy[b, t, 0, 1]) / spacing) * spacing
+            ox[t], oy[t] = gx - half * spacing, gy - half * spacing
+            for c in range(K):
+                i = int(np.rint((xy[b, t, c, 0] - ox[t]) / spacing))
+                j = int(np.rint((xy[b, t, c, 1] - oy[t]) / spacing))
+                if 0 <= i < side and 0 <= j < side:
+                    raster[t, i, j] = max(raster[t, i, j], lp[b, t, c])
+        ll = np.empty(N)
+        px = np.empty((N, T))
+        py = np.empty((N, T))
+        top_ll = -np.inf
+        for n in range(N):
+            ax = cx + (2.0 * offsets[n, 0] - 1.0) * reach * spacing
+            ay = cy + (2.0 * offsets[n, 1] - 1.0) * reach * spacing
+            h = h0 + (2.0 * offsets[n, 2] - 1.0) * turn
+            jb = bins[min(int(offsets[n, 3] * n_bins), n_bins - 1)]
+            s = jb * bin_w
+            ux, uy = s * np.cos(h), s * np.sin(h)
+            v = np.log(speeds[jb])
+            for t in range(T):
+                x, y = ax + ts[t] * ux, ay + ts[t] * uy
+                px[n, t], py[n, t] = x, y
+                i = int(np.rint((x - ox[t]) / spacing))
+                j = int(np.rint((y - oy[t]) / spacing))
+                i = min(max(i, 0), side - 1)
+                j = min(max(j, 0), side - 1)
+                v += raster[t, i, j]
+            ll[n] = v
+            top_ll = max(top_ll, v)
+        total = 0.0
+        mx = np.zeros(T)
+        my = np.zeros(T)
+        for n in range(N):
+            w = np.exp(ll[n] - top_ll)
+            total += w
+            for t in range(T):
+                mx[t] += w * px[n, t]
+                my[t] += w * py[n, t]
+        for t in range(T):
+            out[b, t, 0] = mx[t] / total
+            out[b, t, 1] = my[t] / total
+        delta[b] = top_ll + np.log(total / N) - best
+    return out, delta

@@ -38,9 +38,12 @@ LINE_TURN = 0.3
 LINE_SPEEDS = 0.6
 """Grid spacings per step: the measured speeds weighed lie this near the fitted line's."""
 LINE_SHIFT = -10.0
-"""Nats of ``delta`` at which the straight-line track takes half the weight (see the module)."""
+"""Nats of ``delta`` at which the straight-line track takes half the weight (see the module).
+With :data:`LINE_SCALE`, chosen on 2000 validation users of ``default.zarr`` (prefixes of 4 to 7
+steps, within 0.05 % of the best of shifts -18 to -8 and scales 1 to 6 at every length)."""
 LINE_SCALE = 3.0
-"""Nats of ``delta`` over which its weight goes from a quarter to three quarters / log 3."""
+"""Nats of ``delta`` per unit of the logistic: the weight goes from a quarter to three quarters
+over ``2 ln 3`` times this (6.6 nats)."""
 _MIN_STEP = 0.5  # grid spacings per step: a slower user (a static one, or a stop) is left alone
 
 

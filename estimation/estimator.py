@@ -593,10 +593,10 @@ class Estimator(nn.Module):
         if not self.line_tracking or not len(fine.walk_speeds) or tracked.shape[1] < LINE_MIN_STEPS:
             return tracked
         step = float(self.net.grid_step)
-        walking = float(fine.place_speed) * step
         t = tracked.double().numpy()
+        # walkers as fit_walks measured them: a median step within the place tables' speed
         typical = np.median(np.linalg.norm(np.diff(t, axis=1), axis=-1), axis=1)
-        walk = np.flatnonzero(typical <= (walking if math.isfinite(walking) else PLACE_SPEED))
+        walk = np.flatnonzero(typical <= PLACE_SPEED)
         if not len(walk):
             return tracked
         xy, lp = np.asarray(x[0], np.float64)[walk], np.asarray(x[1][..., 0], np.float64)[walk]

@@ -20,17 +20,7 @@ from estimation.smoothing.line import (
 )
 from estimation.smoothing.motion import MotionTable
 from estimation.synthetic import toy_sequence_set
-
-
-def _candidates(true: np.ndarray, radius: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every step's grid points (1 m grid) within ``radius`` of the true one's cell, the cell
-    itself the most likely by 10 nats: ``(candidates, log-likelihoods, cells)``."""
-    cell = np.rint(true)
-    d = np.arange(-radius, radius + 1.0)
-    around = np.stack(np.meshgrid(d, d, indexing="ij"), -1).reshape(-1, 2)
-    xy = cell[..., None, :] + around
-    lp = np.where(np.abs(around).sum(-1) == 0, 0.0, -10.0) * np.ones(xy.shape[:-1])
-    return xy, lp, cell
+from tests.helpers.candidates import grid_candidates
 
 
 def _speeds(*steps: float, n: int = 120) -> np.ndarray:
@@ -54,7 +44,7 @@ def test_steady_walkers_are_found_inside_their_cells():
     # 1.4 m per step at a known speed: the cells' edges cut the line at many phases, which read
     # the walk to well inside a cell (the per-step cells are 0.38 m off)
     true = _walkers(40, 1.4)
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     track, delta = line_track(cells, xy, lp, _speeds(1.4), 1.0)
     err = np.linalg.norm(track - true, axis=-1).mean()
     assert err < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
@@ -67,18 +57,18 @@ def test_steady_walkers_are_found_inside_their_cells():
 def test_a_walker_who_turns_is_left_to_the_smoother():
     t = np.arange(7.0)
     true = np.stack([20.3 + 1.4 * np.minimum(t, 3), 20.6 + 1.4 * np.maximum(t - 3, 0)], -1)[None]
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     _, delta = line_track(cells, xy, lp, _speeds(1.4), 1.0)
     assert line_weight(delta)[0] < 0.01
     straight = _walkers(1, 1.4, seed=3)
-    xy, lp, cells = _candidates(straight)
+    xy, lp, cells = grid_candidates(straight)
     assert line_track(cells, xy, lp, _speeds(1.4), 1.0)[1][0] > delta[0] + 20.0
 
 
 def test_the_pass_is_the_posterior_mean_over_its_lines():
     # the compiled pass against every line's likelihood read from the candidates directly
     true = _walkers(3, 1.1, T=5, seed=5)
-    xy, lp, cells = _candidates(true, radius=2)
+    xy, lp, cells = grid_candidates(true, radius=2)
     lp = lp + np.random.default_rng(1).uniform(-2, 0, lp.shape)
     speeds = _speeds(1.1, 1.15, 1.4)
     track, delta = line_track(cells, xy, lp, speeds, 1.0)
@@ -151,7 +141,7 @@ def _estimator(walk: np.ndarray | None, fit: bool = True) -> Estimator:
 def test_estimator_mixes_its_walkers_with_their_lines():
     est = _estimator(_speeds(1.4))
     true = _walkers(8, 1.4, T=6)
-    xy, lp, cells = _candidates(true, radius=2)
+    xy, lp, cells = grid_candidates(true, radius=2)
     x = (torch.from_numpy(xy).float(), torch.from_numpy(lp).float()[..., None])
     tracked = torch.from_numpy(cells).float()
     out = est._along_lines(tracked, x)
@@ -178,7 +168,7 @@ def test_a_model_saved_without_walk_speeds_loads_without_the_pass():
     old.net.load_state_dict(state)
     assert not len(old.net.motion_fine.walk_speeds)
     tracked = torch.from_numpy(np.rint(_walkers(2, 1.4, T=6))).float()
-    xy, lp, _ = _candidates(tracked.numpy(), radius=1)
+    xy, lp, _ = grid_candidates(tracked.numpy(), radius=1)
     x = (torch.from_numpy(xy).float(), torch.from_numpy(lp).float()[..., None])
     assert old._along_lines(tracked, x) is tracked
     # and one saved with them keeps them

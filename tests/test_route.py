@@ -15,6 +15,7 @@ from estimation.smoothing.motion import MotionTable
 from estimation.smoothing.route import ROUTE_BINS, route_track, street_routes
 from estimation.synthetic import toy_sequence_set
 from mmwsim.trajectories import StreetNetwork
+from tests.helpers.candidates import grid_candidates
 
 # An L of streets: east along y = 0 to (60, 0), then north to (60, 60).
 L_STREETS = np.array([[[0.0, 0.0], [60.0, 0.0]], [[60.0, 0.0], [60.0, 60.0]]])
@@ -26,18 +27,6 @@ def _along_l(s: np.ndarray) -> np.ndarray:
     east = np.stack([s, np.zeros_like(s)], -1)
     north = np.stack([np.full_like(s, 60.0), s - 60.0], -1)
     return np.where((s <= 60.0)[..., None], east, north)
-
-
-def _candidates(true: np.ndarray, radius: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every step's grid points (1 m grid) within ``radius`` of the true one's cell, the cell
-    itself the most likely by 10 nats: what a fingerprint tells. Returns the candidates, their
-    log-likelihoods and the cells (the per-step best match)."""
-    cell = np.rint(true)
-    d = np.arange(-radius, radius + 1.0)
-    around = np.stack(np.meshgrid(d, d, indexing="ij"), -1).reshape(-1, 2)
-    xy = cell[..., None, :] + around  # (B, T, K, 2)
-    lp = np.where(np.abs(around).sum(-1) == 0, 0.0, -10.0) * np.ones(xy.shape[:-1])
-    return xy, lp, cell
 
 
 def _speeds(step: float, n: int = 400) -> np.ndarray:
@@ -56,7 +45,7 @@ def test_steady_drivers_round_a_corner_are_found_inside_their_cells():
     # route and a steady speed read to far inside a cell; the per-step matches are 0.4 m off
     starts = np.linspace(20.0, 30.0, 17)
     true = _drive(starts, 8.3)
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     net = StreetNetwork.from_segments(L_STREETS)
     track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
     assert on.all()
@@ -72,7 +61,7 @@ def test_a_speed_change_is_followed():
     # 8.3 m per step, then 5.3 from the fourth step: the measured change probability lets it
     s = 25.0 + np.r_[0.0, np.cumsum([8.3, 8.3, 8.3, 5.3, 5.3, 5.3])]
     true = _along_l(s[None])
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     speeds = _speeds(8.3) + _speeds(5.3)
     track, on = route_track(cells, xy, lp, StreetNetwork.from_segments(L_STREETS), speeds, 0.2, 1.0, 5.0)
     assert (
@@ -88,7 +77,7 @@ def test_drivers_at_speeds_of_their_own_are_followed(step):
     # by the motion of speeds of its own, weighed against theirs by how well each explains it;
     # fingerprints that tell little (log-likelihood -0.5 per square metre off) leave it to motion
     true = _drive(np.linspace(20.0, 30.0, 9), step)
-    xy, _, cells = _candidates(true)
+    xy, _, cells = grid_candidates(true)
     lp = -0.5 * ((xy - true[..., None, :]) ** 2).sum(-1)
     net = StreetNetwork.from_segments(L_STREETS)
     track, on = route_track(cells, xy, lp, net, _speeds(8.3, 170), 0.4, 1.0, 5.0)
@@ -175,7 +164,7 @@ def test_a_driver_at_a_speed_of_its_own_changes_it_as_the_training_drivers_do(mo
     # as likely as any other (fingerprints that tell little leave it to motion)
     s = 20.0 + np.r_[0.0, np.cumsum([7.0, 7.0, 7.0, 4.0, 4.0, 4.0])]
     true = _along_l(s[None] + np.linspace(0.0, 1.0, 9)[:, None])
-    xy, _, cells = _candidates(true)
+    xy, _, cells = grid_candidates(true)
     lp = -0.5 * ((xy - true[..., None, :]) ** 2).sum(-1)
     net = StreetNetwork.from_segments(L_STREETS)
     speeds = _speeds(5.3, 170) + _speeds(8.3, 170)
@@ -195,7 +184,7 @@ def test_users_off_the_streets_or_slow_are_left_alone():
     off = _drive(np.array([20.0]), 8.3) + np.array([0.0, 10.0])  # 10 m from the street
     slow = _drive(np.array([20.0]), 1.4)  # a walker on the street
     for true in (off, slow):
-        xy, lp, cells = _candidates(true)
+        xy, lp, cells = grid_candidates(true)
         track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
         assert not on.any() and np.array_equal(track, cells)
 
@@ -205,7 +194,7 @@ def test_a_driver_whose_first_tracked_step_strays_off_the_street_is_smoothed_bac
     street while the others are on it: the route still holds the driver (ROUTE_REACH)."""
     net = StreetNetwork.from_segments(L_STREETS)
     true = _drive(np.array([20.0]), 8.3)
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     tracked = cells.copy()
     tracked[0, 0, 1] += 3.6  # 3.6 m north of the street
     track, on = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
@@ -223,7 +212,7 @@ def test_drivers_in_a_lane_beside_the_centre_line_are_smoothed_along_it(left):
     true = np.where(
         first[:, None], np.stack([s, np.full(7, left)], -1), corner + np.outer(s - corner[0], [0, 1])
     )
-    xy, lp, cells = _candidates(true[None])
+    xy, lp, cells = grid_candidates(true[None])
     net = StreetNetwork.from_segments(L_STREETS)
     track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
     assert on.all()
@@ -286,7 +275,7 @@ def test_drivers_turn_back_at_a_dead_end():
     net = StreetNetwork.from_segments(L_STREETS)
     (route,) = street_routes(net, true)
     assert np.allclose(route[:4], [[80.0, 0.0], [60.0, 0.0], [0.0, 0.0], [60.0, 0.0]])
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
     assert on.all()
     assert np.linalg.norm(track - true, axis=-1).mean() < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
@@ -299,7 +288,7 @@ def test_a_driver_turning_back_mid_street_is_left_alone(monkeypatch):
     x = 110.0 + 8.3 * np.r_[0, 1, 2, 3, 2, 1, 0]
     true = np.stack([x, np.zeros_like(x)], -1)[None]
     net = StreetNetwork.from_segments(np.array([[[0.0, 0.0], [100.0, 0.0]], [[100.0, 0.0], [200.0, 0.0]]]))
-    xy, lp, cells = _candidates(true)
+    xy, lp, cells = grid_candidates(true)
     track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
     assert not on.any() and np.array_equal(track, cells)
 
@@ -370,7 +359,7 @@ def test_estimator_smooths_its_drivers_along_the_attached_map():
     street = np.array([[[0.0, 20.0], [31.0, 20.0]]])
     est.attach(dataclasses.replace(tr, streets=street))
     true = np.stack([2.3 + 6.3 * np.arange(5), np.full(5, 20.0)], -1)[None]  # 6.3 m per step
-    xy, lp, cells = _candidates(true, radius=2)
+    xy, lp, cells = grid_candidates(true, radius=2)
     x = (torch.from_numpy(xy).float(), torch.from_numpy(lp).float()[..., None])
     tracked = torch.from_numpy(cells).float()
     out = est._along_routes(tracked, x)

@@ -58,6 +58,8 @@ def walk_speeds(positions: np.ndarray, max_step: float) -> np.ndarray:
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
         raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError("positions hold NaN or infinite values")
     step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
     s = step[np.median(step, axis=1) <= max_step]
     s = s[s > _MIN_STEP]

@@ -362,10 +362,7 @@ class MotionTable(nn.Module):
         :meth:`fit_drives`'s), per length in bins of ``1 / LINE_BINS`` of the unit (what
         :func:`~estimation.smoothing.line.line_track` weighs its lines by). Empty where there is
         no such step. Returns ``self``."""
-        p = np.asarray(positions, dtype=np.float64)
-        if p.ndim == 3 and not np.isfinite(p).all():
-            raise ValueError("positions hold NaN or infinite values")
-        self.walk_speeds = torch.from_numpy(walk_speeds(p, speed))
+        self.walk_speeds = torch.from_numpy(walk_speeds(positions, speed))
         return self
 
     @torch.no_grad()

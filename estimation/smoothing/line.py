@@ -160,21 +160,16 @@ def _line_kernel(
         if n_bins == 0:
             continue
         bins = np.empty(n_bins, np.int64)
+        log_prior = np.empty(n_bins)  # each bin's log share, read by every line at its speed
         k = 0
         for j in range(lo, hi + 1):
             if speeds[j] > 0.0:
-                bins[k] = j
+                bins[k], log_prior[k] = j, np.log(speeds[j])
                 k += 1
-        # each step's candidates on a raster around the fitted line's point (its lowest elsewhere)
-        half = (
-            int(
-                np.ceil(
-                    (reach * spacing + abs(ts[0]) * (window * spacing + (s0 + window * spacing) * turn))
-                    / spacing
-                )
-            )
-            + 1
-        )
+        # each step's candidates on a raster around the fitted line's point (its lowest elsewhere),
+        # as far out as a line's point at the first or last step can lie from the fitted line's
+        far = reach * spacing + abs(ts[0]) * (window * spacing + (s0 + window * spacing) * turn)
+        half = int(np.ceil(far / spacing)) + 1
         side = 2 * half + 1
         raster = np.empty((T, side, side))
         ox, oy = np.empty(T), np.empty(T)
@@ -203,10 +198,10 @@ def _line_kernel(
             ax = cx + (2.0 * offsets[n, 0] - 1.0) * reach * spacing
             ay = cy + (2.0 * offsets[n, 1] - 1.0) * reach * spacing
             h = h0 + (2.0 * offsets[n, 2] - 1.0) * turn
-            jb = bins[min(int(offsets[n, 3] * n_bins), n_bins - 1)]
-            s = jb * bin_w
+            kb = min(int(offsets[n, 3] * n_bins), n_bins - 1)
+            s = bins[kb] * bin_w
             ux, uy = s * np.cos(h), s * np.sin(h)
-            v = np.log(speeds[jb])
+            v = log_prior[kb]
             for t in range(T):
                 x, y = ax + ts[t] * ux, ay + ts[t] * uy
                 px[n, t], py[n, t] = x, y

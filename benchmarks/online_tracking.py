@@ -13,7 +13,9 @@ during the run weighs on both alike:
   runs them).
 
 Prints seconds per 1000 sequences (after a warm-up call that compiles the kernels) for the 7-step table (search included, then without it), for
-every prefix 2..7 as evaluation runs them, and for one online update per user and step; the mean
+every prefix 2..7 batch by batch, and for one online update per user and step; every prefix as
+evaluation runs them now (``NetworkMethod.predict_lengths``: parts of 256 side by side, one per
+thread), against the offline path run batch by batch and run the same way; the mean
 per-trajectory RMSE of both at 7 steps (vehicle / pedestrian / all), and the error of the
 current position (the filter's last step) against the smoothed last step. Then
 ``OnlineTracker.update`` as a user runs it, with and without its drivers smoothed along their
@@ -35,7 +37,9 @@ LATENCY_USERS = 50
 
 def main() -> None:
     from estimation import Estimator, summarise_by_kind, trajectory_rmse
+    from estimation._parts import map_parts
     from estimation.adapter import load_splits
+    from estimation.evaluation import NetworkMethod
     from estimation.smoothing.hmm import candidate_features
     from mmwsim._threads import set_threads
 
@@ -107,10 +111,38 @@ def main() -> None:
         f" {t_off7 * per:.2f} s against {(t_fwd + t_bwd7) * per:.2f} s ({t_off7 / (t_fwd + t_bwd7):.1f}x)"
     )
     print(
-        f"prefixes 2..7 (evaluation): offline {(t_search + t_off_all) * per:.2f} s, online"
+        f"prefixes 2..7 batch by batch: offline {(t_search + t_off_all) * per:.2f} s, online"
         f" {(t_search + t_fwd + t_bwd_all) * per:.2f} s per 1000 ({(t_search + t_off_all) / (t_search + t_fwd + t_bwd_all):.1f}x)"
     )
     print(f"online update: {(t_search + t_fwd) / 7 * 1e3 / n:.3f} ms per user and step (search included)")
+
+    # Prefixes as evaluation runs them now: parts of 256 side by side, one per thread; and the
+    # offline path run the same way, so that the ratio is not the side-by-side parts' alone.
+    # Both in turn on each batch of 512, as above.
+    lengths = list(range(2, 8))
+    method = NetworkMethod(est, "online", 0.0, 0)
+
+    def offline_part(rows: slice) -> list[torch.Tensor]:
+        xy, score = est.search(bits[rows].float())
+        return [offline(xy, score, L) for L in lengths]
+
+    t_eval = t_off_parts = 0.0
+    ev7 = []
+    for a in range(0, n, 512):
+        b = min(n, a + 512)
+        t = time.perf_counter()
+        ev7.append(method.predict_lengths(bits[a:b], lengths)[7][0])
+        t_eval += time.perf_counter() - t
+        t = time.perf_counter()
+        map_parts(offline_part, [slice(c, min(b, c + 256)) for c in range(a, b, 256)])
+        t_off_parts += time.perf_counter() - t
+    same = np.array_equal(np.concatenate(ev7), on7.double().numpy())
+    print(
+        f"prefixes 2..7 as evaluation runs them (parts of 256 side by side on {args.threads} threads):"
+        f" {t_eval * per:.2f} s per 1000, {(t_search + t_off_all) / t_eval:.1f}x the offline path above;"
+        f" the offline path run the same way {t_off_parts * per:.2f} s ({t_off_parts / t_eval:.1f}x);"
+        f" its 7 steps equal to the batch-by-batch online path's: {same}"
+    )
     print(row("offline", off7))
     print(row("online ", on7))
     for routes in (True, False):  # the tracker's current positions, one update per step

@@ -13,9 +13,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from mmwsim._threads import in_worker, pieces, threads
 from mmwsim.constants import SIGMA_DB
 from mmwsim.trajectories import StreetNetwork, TrajectoryError
 
+from ._parts import map_parts
 from ._stamps import same_stamp, stamp
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
 from .data import Normaliser, SequenceSet
@@ -549,7 +551,10 @@ class Estimator(nn.Module):
 
         Bits go through in blocks of :data:`ROUTE_CHUNK` sequences, each block's :meth:`inputs`
         made and let go in turn: memory is a block's, whatever ``B`` (a grid-reading network's
-        filter holds about 60 kB per sequence and step)."""
+        filter holds about 60 kB per sequence and step). A grid-reading network's blocks run side
+        by side, one per thread of :func:`mmwsim._threads.threads` (each of ``ROUTE_CHUNK``
+        divided by the threads, so memory is the same), each on one torch thread; the results
+        do not depend on the number of threads."""
         was = self.training
         self.eval()
         try:
@@ -559,7 +564,12 @@ class Estimator(nn.Module):
                 if x.shape[1] == 0:
                     raise EstimationError("fingerprint sequences need at least one step, got 0")
             prepare = self.inputs if raw and self.uses_grid else (lambda block: block)
-            parts = [self._predict_rows(prepare(_rows(x, b))) for b in _blocks(_length(x), ROUTE_CHUNK)]
+            n = _length(x)
+            if self.uses_grid and not in_worker():  # blocks side by side, one per thread
+                blocks = pieces(n, PREDICT_CHUNK, max(1, ROUTE_CHUNK // threads())) or [slice(0, 0)]
+                parts = map_parts(lambda b: self._predict_rows(prepare(_rows(x, b))), blocks)
+            else:
+                parts = [self._predict_rows(prepare(_rows(x, b))) for b in _blocks(n, ROUTE_CHUNK)]
             return torch.cat(parts) if len(parts) != 1 else parts[0]
         finally:
             self.train(was)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from ._parts import map_parts
 from .classical import KnnKalman, MatchSmoother
 from .data import SequenceSet
 from .errors import EstimationError
@@ -42,6 +43,9 @@ __all__ = [
 ]
 
 _BATCH = 512
+# Sequences per part of a grid-reading network's prefixes: the parts run side by side, one per
+# thread (:func:`~estimation._parts.map_parts`), so two of 256 hold what one of 512 held.
+_PART = 256
 
 
 def _per_prefix(
@@ -54,42 +58,56 @@ def _per_prefix(
     over the longest crop (each step's result is its own, so a prefix's is a prefix), ``finish``
     sees only the first ``L`` steps of it (no look-ahead); each length is charged its share of the
     per-step time."""
-    return _shared_prefixes(
-        bits, lengths, lambda b: [per_step(b)], lambda found, lens: [found] * len(lens), finish
-    )
+    return _shared_prefixes(bits, lengths, per_step, lambda found, lens: [found] * len(lens), finish)
 
 
 def _shared_prefixes(
     bits: torch.Tensor,
     lengths: list[int],
-    per_step: Callable[[torch.Tensor], Iterable[Any]],
+    per_step: Callable[[torch.Tensor], Any],
     smooth: Callable[[Any, list[int]], list[Any]],
     finish: Callable[[Any, int], np.ndarray],
+    part: int | None = None,
 ) -> dict[int, tuple[np.ndarray, float]]:
-    """:func:`_per_prefix` for per-step work split in parts (batches) whose prefixes share work:
-    ``smooth(part, lengths)`` gives what ``finish(x, L)`` reads for each length, from the first
-    ``L`` steps only; each length is charged its share of the per-step time, its share (by its
-    number of steps) of the shared time, and its own ``finish``.
+    """:func:`_per_prefix` for per-step work whose prefixes share work: ``smooth(found, lengths)``
+    gives what ``finish(x, L)`` reads for each length, from the first ``L`` steps only.
 
-    ``per_step`` may give its parts one at a time (a generator): each is smoothed and let go
-    before the next is made, so that only one part's state (a candidate filter's stored
-    messages, about 57 kB per user and step) is held at once."""
+    With ``part``, the sequences go in parts of that many, side by side on the process's threads
+    (:func:`~estimation._parts.map_parts`), each part's per-step work smoothed and let go before
+    the thread takes the next: one part's state (a candidate filter's stored messages, about
+    57 kB per user and step) is held per thread. Each length is charged its share of the
+    per-step time, its share (by its number of steps) of the shared time, and its own
+    ``finish``, measured on each part's thread; with parts side by side, each part's times are
+    scaled by the wall-clock time the parts took together over the sum of their own times."""
     Lmax = max(lengths)
-    preds: dict[int, list[np.ndarray]] = {L: [] for L in lengths}
-    seconds = dict.fromkeys(lengths, 0.0)
-    t0 = time.perf_counter()
-    for part in per_step(bits[:, :Lmax]):  # the time since t0: this part's per-step work
+    crop = bits[:, :Lmax]
+
+    def run(rows: slice) -> tuple[dict[int, np.ndarray], dict[int, float], float]:
+        t0 = time.perf_counter()
+        found = per_step(crop[rows])
         step_seconds = (time.perf_counter() - t0) / Lmax
         t1 = time.perf_counter()
-        shared = smooth(part, lengths)
-        del part
+        shared = smooth(found, lengths)
+        del found
         per_step_shared = (time.perf_counter() - t1) / sum(lengths)
+        preds, seconds = {}, {}
         for L, x in zip(lengths, shared, strict=True):
             t2 = time.perf_counter()
-            preds[L].append(finish(x, L))
-            seconds[L] += (step_seconds + per_step_shared) * L + time.perf_counter() - t2
-        t0 = time.perf_counter()
-    return {L: (np.concatenate(preds[L]), seconds[L]) for L in lengths}
+            preds[L] = finish(x, L)
+            seconds[L] = (step_seconds + per_step_shared) * L + time.perf_counter() - t2
+        return preds, seconds, time.perf_counter() - t0
+
+    n = len(bits)
+    rows = [slice(a, a + part) for a in range(0, max(n, 1), part)] if part else [slice(0, n)]
+    t = time.perf_counter()
+    done = map_parts(run, rows)
+    wall = time.perf_counter() - t
+    busy = sum(b for _, _, b in done)  # the parts' own times, more than the wall's side by side
+    scale = wall / busy if len(done) > 1 and busy > 0 else 1.0
+    return {
+        L: (np.concatenate([p[L] for p, _, _ in done]), scale * sum(s[L] for _, s, _ in done))
+        for L in lengths
+    }
 
 
 class NetworkMethod:
@@ -153,9 +171,8 @@ class NetworkMethod:
         if not self.est.uses_grid:
             return _per_prefix(bits, lengths, lambda b: b, lambda b, L: self._predict(b[:, :L].float()))
 
-        def forward(b: torch.Tensor) -> Iterator[CandidateFilter]:
-            for k in range(0, len(b), _BATCH):
-                yield self.est.candidate_filter().run(*self.est.search(b[k : k + _BATCH].float()))
+        def forward(b: torch.Tensor) -> CandidateFilter:
+            return self.est.candidate_filter().run(*self.est.search(b.float()))
 
         return _shared_prefixes(
             bits,
@@ -163,6 +180,7 @@ class NetworkMethod:
             forward,
             lambda f, lens: f.smooth_prefixes(lens),
             lambda x, L: self.est.predict(x).numpy().astype(np.float64),
+            part=_PART,
         )
 
     def _predict(self, x: torch.Tensor) -> np.ndarray:
@@ -244,7 +262,7 @@ class MatchSmootherMethod:
         return _shared_prefixes(
             bits,
             lengths,
-            lambda b: [self.model.filter(*self.model.search(b.float()))],
+            lambda b: self.model.filter(*self.model.search(b.float())),
             lambda f, lens: f.smooth_prefixes(lens),
             lambda x, L: x[2].numpy().astype(np.float64),
         )

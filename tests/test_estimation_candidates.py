@@ -753,23 +753,24 @@ def test_evaluation_of_a_prefix_does_not_see_later_steps():
         assert np.allclose(out[L][0], est.predict(bits[:, :L]).numpy(), atol=1e-5)
 
 
-def test_evaluation_holds_one_batchs_filter_at_a_time(monkeypatch):
-    """Every prefix of a batch is smoothed before the next batch's filter is made, and the filter
-    is then let go: what evaluation holds is one batch's stored messages, whatever the number of
-    test trajectories. The predictions are those of the whole set at once."""
+def test_evaluation_holds_one_parts_filter_per_thread(monkeypatch):
+    """Every prefix of a part is smoothed before its thread makes the next part's filter, and the
+    filter is then let go: what evaluation holds is one part's stored messages per thread,
+    whatever the number of test trajectories. The predictions are those of the whole set at once."""
     import gc
     import weakref
 
     import estimation.evaluation as evaluation
     from estimation import NetworkMethod
     from estimation.smoothing.online import CandidateFilter
+    from mmwsim._threads import set_threads
 
     torch.manual_seed(0)
     d = toy_sequence_set(9, 5, nx=16, ny=16, n_beams=4, n_bins=8)
     est = Estimator(TrainConfig(model="tn-match", options={"search": 16, "k": 4}), 4, 8, d.normaliser())
     est.attach(d)
     bits = noisy_bits(d, 6.0, torch.Generator().manual_seed(0))
-    made, run = [], CandidateFilter.run
+    made, made_refs, run = [], [], CandidateFilter.run
 
     def tracked_run(self, *args):
         gc.collect()
@@ -777,12 +778,19 @@ def test_evaluation_holds_one_batchs_filter_at_a_time(monkeypatch):
         made_refs.append(weakref.ref(self))
         return run(self, *args)
 
-    made_refs: list = []
-    monkeypatch.setattr(CandidateFilter, "run", tracked_run)
-    monkeypatch.setattr(evaluation, "_BATCH", 4)
-    out = NetworkMethod(est, "tn-match").for_sigma(6.0, d).predict_lengths(bits, [2, 5])
-    assert made == [0, 0, 0]  # three batches, none alive when the next was made
-    monkeypatch.setattr(CandidateFilter, "run", run)
-    for L in (2, 5):
-        assert np.allclose(out[L][0], est.predict(bits[:, :L]).numpy(), atol=1e-5)
-        assert out[L][1] > 0
+    monkeypatch.setattr(evaluation, "_PART", 4)
+    for threads in (1, 2):
+        made.clear()
+        made_refs.clear()
+        monkeypatch.setattr(CandidateFilter, "run", tracked_run)
+        set_threads(threads)
+        try:
+            out = NetworkMethod(est, "tn-match").for_sigma(6.0, d).predict_lengths(bits, [2, 5])
+        finally:
+            set_threads(None)
+        # three parts; on one thread none alive when the next is made, on two the other thread's
+        assert len(made) == 3 and max(made) <= threads - 1
+        monkeypatch.setattr(CandidateFilter, "run", run)
+        for L in (2, 5):
+            assert np.allclose(out[L][0], est.predict(bits[:, :L]).numpy(), atol=1e-5)
+            assert out[L][1] > 0

@@ -410,6 +410,30 @@ def test_prediction_in_chunks_is_prediction_at_once():
     assert est.predict(tuple(t[:0] for t in x)).shape == (0, 4, 2)
 
 
+def test_prediction_and_prefixes_side_by_side_are_the_same_bytes_on_any_threads(monkeypatch):
+    from estimation import evaluation
+
+    va = toy_sequence_set(200, 5, seed=4)
+    bits = noisy_bits(va, 6.0, torch.Generator().manual_seed(5))
+    torch.manual_seed(0)
+    cfg = TrainConfig(model="tn-match", sigma=6.0, options={"search": 32, "k": 8, "d": 16, "ff": 32})
+    est = Estimator(cfg, va.n_beams, va.n_bins, va.normaliser()).attach(va)
+    method = evaluation.NetworkMethod(est, "toy", 0.0, 0)
+    monkeypatch.setattr(evaluation, "_PART", 48)  # five parts
+    runs = []
+    for n in (1, 2):
+        set_threads(n)  # two: blocks of 100 and parts of 48 side by side, one torch thread each
+        try:
+            runs.append((est.predict(bits), method.predict_lengths(bits, [2, 5])))
+        finally:
+            set_threads(None)
+    (one, one_prefixes), (two, two_prefixes) = runs
+    assert one.shape == (200, 5, 2) and torch.equal(one, two)
+    for L in (2, 5):
+        assert np.array_equal(one_prefixes[L][0], two_prefixes[L][0]) and two_prefixes[L][1] > 0
+        assert np.allclose(two_prefixes[L][0], est.predict(bits[:, :L]).numpy(), atol=1e-5)
+
+
 def test_online_tracker_updates_per_step_and_tracks_like_predict():
     va = toy_sequence_set(64, 5, seed=2)
     bits = noisy_bits(va, 12.0, torch.Generator().manual_seed(3))  # noisy enough for aliases

@@ -440,9 +440,11 @@ def test_online_tracker_puts_its_drivers_on_their_routes(monkeypatch):
 
 def test_prediction_routes_its_drivers_in_blocks_of_network_chunks(monkeypatch):
     """The network runs in chunks of PREDICT_CHUNK sequences, the route pass once per block of
-    ROUTE_CHUNK (its cost per call is mostly fixed); the tracks do not depend on either size."""
+    at most ROUTE_CHUNK over the threads (its cost per call is mostly fixed), the blocks side by
+    side on the threads; the tracks depend on neither size nor on the threads."""
     from estimation import estimator as estimator_module
     from estimation.noise import noisy_bits
+    from mmwsim._threads import set_threads
 
     tr, est = _street_estimator()
     drivers, _ = _street_drivers(tr, 40, 5)
@@ -455,15 +457,23 @@ def test_prediction_routes_its_drivers_in_blocks_of_network_chunks(monkeypatch):
 
     monkeypatch.setattr(est, "_route_tracks", spy)
     monkeypatch.setattr(estimator_module, "PREDICT_CHUNK", 8)
-    out = est.predict(inputs)
-    assert blocks == [40]  # five network chunks, one route pass
-    monkeypatch.setattr(estimator_module, "ROUTE_CHUNK", 16)
-    assert torch.equal(est.predict(inputs), out)
-    assert blocks[1:] == [16, 16, 8]
-    # from bits, each block's candidates are filtered and let go before the next block's
-    bits = noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4)).float()
-    filtered, make = [], est.inputs
-    monkeypatch.setattr(est, "inputs", lambda b: filtered.append(len(b)) or make(b))
-    assert torch.equal(est.predict(bits), out) and filtered == [16, 16, 8]
+    set_threads(1)
+    try:
+        out = est.predict(inputs)
+        assert blocks == [40]  # five network chunks, one route pass
+        monkeypatch.setattr(estimator_module, "ROUTE_CHUNK", 16)
+        assert torch.equal(est.predict(inputs), out)
+        assert blocks[1:] == [14, 14, 12]  # even blocks of at most 16
+        # from bits, each block's candidates are filtered and let go before the next block's
+        bits = noisy_bits(drivers, 6.0, torch.Generator().manual_seed(4)).float()
+        filtered, make = [], est.inputs
+        monkeypatch.setattr(est, "inputs", lambda b: filtered.append(len(b)) or make(b))
+        assert torch.equal(est.predict(bits), out) and filtered == [14, 14, 12]
+        monkeypatch.setattr(estimator_module, "ROUTE_CHUNK", 1024)
+        set_threads(2)  # two blocks side by side
+        del blocks[:]
+        assert torch.equal(est.predict(inputs), out) and blocks == [20, 20]
+    finally:
+        set_threads(None)
     est.route_tracking = False
     assert not torch.equal(est.predict(inputs), out)  # the route pass moved them

@@ -43,8 +43,9 @@ __all__ = [
 ]
 
 _BATCH = 512
-# Sequences per part of a grid-reading network's prefixes: the parts run side by side, one per
-# thread (:func:`~estimation._parts.map_parts`), so two of 256 hold what one of 512 held.
+# Sequences per part of a grid-reading network's (and match-cv's) prefixes: the parts run side by
+# side, one per thread (:func:`~estimation._parts.map_parts`), so two of 256 hold what one of 512
+# held. match-cv held all of them at once: 2.4 s against 2.2 s per 1000 sequences, prefixes 2..7.
 _PART = 256
 
 
@@ -265,6 +266,7 @@ class MatchSmootherMethod:
             lambda b: self.model.filter(*self.model.search(b.float())),
             lambda f, lens: f.smooth_prefixes(lens),
             lambda x, L: x[2].numpy().astype(np.float64),
+            part=_PART,
         )
 
 

@@ -18,7 +18,7 @@ from typing import TypeVar
 
 import torch
 
-from mmwsim._threads import in_worker, thread_map, threads
+from mmwsim._threads import thread_map, threads
 
 __all__ = ["map_parts"]
 
@@ -32,7 +32,7 @@ def map_parts(fn: Callable[[T], R], parts: Sequence[T]) -> list[R]:
 
     Called from one of those threads (a part that maps parts of its own), it runs them in turn
     there. torch's thread count is restored afterwards."""
-    if threads() <= 1 or len(parts) <= 1 or in_worker():
+    if threads() <= 1 or len(parts) <= 1:
         return [fn(p) for p in parts]
     grad = torch.is_grad_enabled()
     before = torch.get_num_threads()

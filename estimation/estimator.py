@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from mmwsim._threads import in_worker, pieces, threads
+from mmwsim._threads import pieces, threads
 from mmwsim.constants import SIGMA_DB
 from mmwsim.trajectories import StreetNetwork, TrajectoryError
 
@@ -565,7 +565,7 @@ class Estimator(nn.Module):
                     raise EstimationError("fingerprint sequences need at least one step, got 0")
             prepare = self.inputs if raw and self.uses_grid else (lambda block: block)
             n = _length(x)
-            if self.uses_grid and not in_worker():  # blocks side by side, one per thread
+            if self.uses_grid:  # blocks side by side, one per thread (one block within a part's)
                 blocks = pieces(n, PREDICT_CHUNK, max(1, ROUTE_CHUNK // threads())) or [slice(0, 0)]
                 parts = map_parts(lambda b: self._predict_rows(prepare(_rows(x, b))), blocks)
             else:

@@ -104,7 +104,7 @@ def _shared_prefixes(
     done = map_parts(run, rows)
     wall = time.perf_counter() - t
     busy = sum(b for _, _, b in done)  # the parts' own times, more than the wall's side by side
-    scale = wall / busy if len(done) > 1 and busy > 0 else 1.0
+    scale = wall / busy if busy > 0 else 1.0
     return {
         L: (np.concatenate([p[L] for p, _, _ in done]), scale * sum(s[L] for _, s, _ in done))
         for L in lengths

@@ -15,7 +15,7 @@ from typing import TypeVar
 
 import numpy as np
 
-__all__ = ["cores", "threads", "set_threads", "thread_map", "in_worker", "pieces", "batch_map"]
+__all__ = ["cores", "threads", "set_threads", "thread_map", "pieces", "batch_map"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -32,7 +32,10 @@ def cores() -> int:
 
 
 def threads() -> int:
-    """Threads a parallel section may use: :func:`set_threads`'s value, else the cores."""
+    """Threads a parallel section may use: one within a thread of :func:`thread_map`'s (its
+    sections run in turn there), else :func:`set_threads`'s value, else the cores."""
+    if threading.current_thread().name.startswith(_PREFIX):
+        return 1
     return _threads if _threads is not None else cores()
 
 
@@ -48,14 +51,9 @@ def thread_map(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
     The threads are kept between calls (starting them costs more than a small kernel); a call
     from one of them runs in that thread, so nested calls cannot wait on each other."""
     n = min(threads(), len(items))
-    if n <= 1 or in_worker():
+    if n <= 1:
         return [fn(x) for x in items]
     return list(_pool(n).map(fn, items))
-
-
-def in_worker() -> bool:
-    """Whether the calling thread is one of :func:`thread_map`'s."""
-    return threading.current_thread().name.startswith(_PREFIX)
 
 
 _PREFIX = "mmwsim-thread"

@@ -25,6 +25,16 @@ def restore_threads():
 def test_thread_map_keeps_order(restore_threads):
     _threads.set_threads(3)
     assert _threads.thread_map(lambda x: x * x, list(range(10))) == [x * x for x in range(10)]
+    # within one of its threads a parallel section has one thread, and a nested map runs there
+    inner = _threads.thread_map(
+        lambda x: (
+            _threads.threads(),
+            _threads.thread_map(lambda y: threading.current_thread().name, [0, 1]),
+        ),
+        [0, 1, 2],
+    )
+    assert all(n == 1 and len(set(names)) == 1 and names[0].startswith("mmwsim-thread") for n, names in inner)
+    assert _threads.threads() == 3
     _threads.set_threads(1)
     assert _threads.threads() == 1
     _threads.set_threads(None)

@@ -23,6 +23,8 @@ from numba import njit
 
 from mmwsim._threads import batch_map
 
+from ._positions import checked_positions
+
 __all__ = ["LINE_BINS", "LINE_MIN_STEPS", "line_track", "line_weight", "walk_speeds"]
 
 LINE_BINS = 20
@@ -55,11 +57,7 @@ def walk_speeds(positions: np.ndarray, max_step: float) -> np.ndarray:
     Measured on trajectories ``positions (n, L >= 2, 2)`` as they are (not snapped), in grid
     spacings: the steps longer than half a spacing of users whose median step is at most
     ``max_step`` (the place tables' speed: the drivers are the route pass's)."""
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
-        raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
-    if not np.isfinite(p).all():
-        raise ValueError("positions hold NaN or infinite values")
+    p = checked_positions(positions)
     step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
     s = step[np.median(step, axis=1) <= max_step]
     s = s[s > _MIN_STEP]

@@ -30,6 +30,7 @@ from torch import nn
 
 from mmwsim._jit import njit
 
+from ._positions import checked_positions
 from .beam import _frame
 from .motion import SUBCELLS
 
@@ -222,11 +223,7 @@ class MotionMemory(nn.Module):
         before, and given the two before the counts plus ``backoff`` times the density given
         the one (so an acceleration seen rarely after a pair keeps its density given the last
         one). Returns ``self``."""
-        u = np.asarray(u, dtype=np.float64)
-        if u.ndim != 3 or u.shape[2] != 2 or u.shape[1] < 4 or not len(u):
-            raise ValueError(f"need lattice positions of shape (n, L >= 4, 2), got {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError("positions hold NaN or infinite values")
+        u = checked_positions(u, 4, nonempty=True, what="lattice positions")
         if not backoff > 0:
             raise ValueError(f"backoff must be > 0, got {backoff}")
         n_band, n_code = self.log_ratio.shape[:2]

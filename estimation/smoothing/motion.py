@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ._positions import checked_positions
 from .line import walk_speeds
 from .route import ROUTE_BINS
 
@@ -324,11 +325,7 @@ class MotionTable(nn.Module):
         steps that head alike (or where one stands still). On ``default.zarr`` the chords had made
         a third of the speeds and two in five of the changes (0.376 against 0.224). Returns
         ``self``."""
-        p = np.asarray(positions, dtype=np.float64)
-        if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2:
-            raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
-        if not np.isfinite(p).all():
-            raise ValueError("positions hold NaN or infinite values")
+        p = checked_positions(positions)
         move = np.diff(p, axis=1)
         step = np.linalg.norm(move, axis=-1)
         drivers = np.median(step, axis=1) > speed
@@ -388,11 +385,7 @@ class MotionTable(nn.Module):
         :data:`RESTART_SHARE` of ``speed`` (it stopped), zero (it stays) with fewer than
         :data:`RESTART_MIN` such stops. Returns ``self``.
         """
-        p = np.asarray(positions, dtype=np.float64)
-        if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 2 or not len(p):
-            raise ValueError(f"need positions of shape (n, L >= 2, 2), got {p.shape}")
-        if not np.isfinite(p).all():
-            raise ValueError("positions hold NaN or infinite values")
+        p = checked_positions(positions, nonempty=True)
         _check_place(shape, res, floor, speed)
         step = np.linalg.norm(np.diff(p, axis=1), axis=-1)  # (n, L-1)
         stopped = (step[:, :-2] > speed) & (step[:, 1:-1] < RESTART_SHARE * speed)
@@ -692,11 +685,7 @@ class MotionTable(nn.Module):
             raise ValueError(f"blend must lie in [0, 1], got {blend}")
         from scipy.ndimage import gaussian_filter
 
-        p = np.asarray(positions, dtype=np.float64)
-        if p.ndim != 3 or p.shape[2] != 2 or p.shape[1] < 3 or not len(p):
-            raise ValueError(f"need positions of shape (n, L >= 3, 2), got {p.shape}")
-        if not np.isfinite(p).all():
-            raise ValueError("positions hold NaN or infinite values")
+        p = checked_positions(positions, 3, nonempty=True)
         d = np.diff(p, axis=1)  # displacements; their differences are the accelerations
         step = torch.from_numpy(d.reshape(-1, 2))
         v = torch.from_numpy(d[:, :-1].reshape(-1, 2))

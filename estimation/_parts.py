@@ -6,7 +6,8 @@ two threads each, the stages wait on one another and the cores idle between them
 halves of the batch on one thread each, one half's Python overlaps the other's kernels. On
 ``default.zarr`` (an 8-minute network, 1000 seen-area sequences, prefixes 2..7 as evaluation
 runs them, 2 cores), four runs of ``benchmarks/online_tracking.py`` took 12.1 to 14.2 s per
-1000 against 14.7 to 18.8 s one part at a time (docs/estimation.md, "Parts side by side").
+1000; the trials before, one part at a time, 14.7 to 18.8 s (docs/estimation.md, "Parts side
+by side").
 Every part is computed as it would be alone, so the results do not depend on the number of
 threads.
 """

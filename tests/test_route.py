@@ -202,6 +202,37 @@ def test_a_driver_whose_first_tracked_step_strays_off_the_street_is_smoothed_bac
     assert np.linalg.norm(track - true, axis=-1).max() < 0.5  # the stray step 3.6 m off before
 
 
+@pytest.mark.parametrize("end", [0, -1])
+def test_a_driver_lost_at_an_end_step_is_put_back_where_its_speed_and_fingerprints_agree(end, monkeypatch):
+    """The smoother tracked the first (or last) step onto an alias 5 m along the street, past the
+    first pass's window: the wider windows at the end steps find the true cell, where the
+    driver's speed puts it, and take the track as it moves that step by over a spacing."""
+    net = StreetNetwork.from_segments(L_STREETS)
+    true = _drive(np.array([20.0]), 8.3)
+    xy, lp, cells = grid_candidates(true)
+    alias = np.rint(_along_l(20.0 + 8.3 * (6 if end else 0) + (-5.0 if end else 5.0)))  # 5 m inward
+    xy[0, end, 0], lp[0, end, 0] = alias, -1.0  # the alias, 1 nat below the true cell
+    tracked = cells.copy()
+    tracked[0, end] = alias
+    track, on = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert on.all() and np.linalg.norm(track[0, end] - true[0, end]) < 0.5
+    assert np.linalg.norm(track - true, axis=-1).max() < 0.5
+    monkeypatch.setattr(route, "ROUTE_END_WINDOW", route.ROUTE_WINDOW)  # one pass only
+    first, _ = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert np.linalg.norm(first[0, end] - true[0, end]) > 2.0
+
+
+def test_the_wider_end_windows_leave_drivers_tracked_right_as_they_were(monkeypatch):
+    starts = np.linspace(20.0, 30.0, 17)
+    true = _drive(starts, 8.3)
+    xy, lp, cells = grid_candidates(true)
+    net = StreetNetwork.from_segments(L_STREETS)
+    track, _ = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    monkeypatch.setattr(route, "ROUTE_END_WINDOW", route.ROUTE_WINDOW)
+    first, _ = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert np.array_equal(track, first)
+
+
 @pytest.mark.parametrize("left", [1.3, -1.7])
 def test_drivers_in_a_lane_beside_the_centre_line_are_smoothed_along_it(left):
     # a lane ``left`` metres left of the L's centre line (right where negative), round its corner

@@ -651,23 +651,40 @@ def _forward_backward_changes(
     return post, alive, evidence
 
 
+def _window_loglik(
+    part: list,
+    idx: np.ndarray,
+    xy: np.ndarray,
+    lp: np.ndarray,
+    offsets: np.ndarray,
+    spacing: float,
+    steps: slice | list = slice(None),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For ``part`` ((user, line, arc lengths) of :func:`route_track`) of users ``idx`` at
+    ``steps``: each tracked arc length on the bins ``(n, S)``, the positions ``offsets`` metres
+    either side along the line ``(n, S, W, 2)`` and their log-likelihood ``(n, S, W)``."""
+    h = spacing / ROUTE_BINS
+    centre = np.stack([np.rint(arc[steps] / h) * h for _, _, arc in part])
+    pos = np.stack([_along(r, centre[k][:, None] + offsets) for k, (_, r, _) in enumerate(part)])
+    at = np.asarray(xy[idx][:, steps], np.float64), np.asarray(lp[idx][:, steps], np.float64)
+    return centre, pos, _candidate_loglik(*at, pos, spacing)
+
+
 def _end_gaps(
     lines: list, xy: np.ndarray, lp: np.ndarray, spacing: float, half: int, end: int, B: int
 ) -> np.ndarray:
     """``(B,)`` per user, the most by which a position along its ``lines`` at the first or the
     last step, within ``end`` arc bins of the tracked one and outside ``half``, is likelier than
     the likeliest within ``half`` (log-likelihood; -inf for users without lines)."""
-    h = spacing / ROUTE_BINS
     bins = np.arange(-end, end + 1)
     outside = np.abs(bins) > half
+    user = np.array([b for b, _, _ in lines], dtype=np.int64)
     gap = np.full(B, -np.inf)
     for c in range(0, len(lines), _CHUNK):
-        part = lines[c : c + _CHUNK]
-        idx = np.array([b for b, _, _ in part], dtype=np.int64)
-        centre = np.stack([np.rint(arc[[0, -1]] / h) * h for _, _, arc in part])  # (n, 2)
-        pos = np.stack([_along(r, centre[k][:, None] + bins * h) for k, (_, r, _) in enumerate(part)])
-        ends = np.asarray(xy[idx][:, [0, -1]], np.float64), np.asarray(lp[idx][:, [0, -1]], np.float64)
-        ll = _candidate_loglik(*ends, pos, spacing)
+        idx = user[c : c + _CHUNK]
+        ll = _window_loglik(
+            lines[c : c + _CHUNK], idx, xy, lp, bins * (spacing / ROUTE_BINS), spacing, [0, -1]
+        )[2]
         np.maximum.at(gap, idx, (ll[..., outside].max(-1) - ll[..., ~outside].max(-1)).max(-1))
     return gap
 
@@ -697,10 +714,7 @@ def _smooth_lines(
     logw = np.full((len(lines), 2), -np.inf)
     for c in range(0, len(lines), _CHUNK):
         part = lines[c : c + _CHUNK]
-        idx = user[c : c + _CHUNK]
-        centre = np.stack([np.rint(arc / h) * h for _, _, arc in part])  # (n, T)
-        pos = np.stack([_along(r, centre[k][:, None] + offsets) for k, (_, r, _) in enumerate(part)])
-        ll = _candidate_loglik(np.asarray(xy[idx], np.float64), np.asarray(lp[idx], np.float64), pos, spacing)
+        centre, pos, ll = _window_loglik(part, user[c : c + _CHUNK], xy, lp, offsets, spacing)
         ll[:, 1:-1, outside] = -np.inf  # the steps between keep the narrow window
         top = ll.max(2, keepdims=True)
         lik = np.exp(ll - top)

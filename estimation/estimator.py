@@ -32,6 +32,7 @@ from .smoothing.line import LINE_MIN_STEPS, line_track, line_weight
 from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
 from .smoothing.route import route_track
+from .smoothing.stops import stop_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -267,9 +268,11 @@ class Estimator(nn.Module):
         Whether a grid-reading network's tracks of users who walk (a median step no longer than
         the place tables' speed) of at least :data:`~estimation.smoothing.line.LINE_MIN_STEPS`
         steps are mixed with their straight-line tracks at the speeds measured on the training
-        users (:func:`~estimation.smoothing.line.line_track`), each by how well a straight line
-        explains its steps, before they are returned (default True; only where the model
-        measured those speeds). :meth:`OnlineTracker.update`'s current positions do not.
+        users (:func:`~estimation.smoothing.line.line_track`), and with lines that stop once
+        where the model measured how its walkers set off after a stop
+        (:func:`~estimation.smoothing.stops.stop_track`), each by how well the lines explain its
+        steps, before they are returned (default True; only where the model measured those
+        speeds). :meth:`OnlineTracker.update`'s current positions do not.
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):
@@ -596,7 +599,7 @@ class Estimator(nn.Module):
 
     def _along_lines(self, tracked: torch.Tensor, x: Any) -> torch.Tensor:
         """``tracked (B, T, 2)`` metres with each user who walks mixed with its straight-line
-        track (:attr:`line_tracking`) by the line's weight
+        track, or its lines that stop once (:attr:`line_tracking`), by their weight
         (:func:`~estimation.smoothing.line.line_weight`), from the candidates of the inputs
         ``x``; as it is where that does not apply."""
         fine = self.net.motion_fine
@@ -611,6 +614,11 @@ class Estimator(nn.Module):
             return tracked
         xy, lp = np.asarray(x[0], np.float64)[walk], np.asarray(x[1][..., 0], np.float64)[walk]
         line, delta = line_track(t[walk], xy, lp, fine.walk_speeds.numpy(), step)
+        if len(fine.walk_restarts):  # models saved before they were measured stop nowhere
+            line, delta = stop_track(
+                t[walk], xy, lp, fine.walk_speeds.numpy(), fine.walk_restarts.numpy(), float(fine.walk_stop), step,
+                line, delta,
+            )  # fmt: skip
         w = line_weight(delta)[:, None, None]
         out = tracked.clone()
         out[torch.from_numpy(walk)] = torch.from_numpy(w * line + (1 - w) * t[walk]).to(out.dtype)

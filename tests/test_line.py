@@ -65,8 +65,10 @@ def test_a_walker_who_turns_is_left_to_the_smoother():
     assert line_track(cells, xy, lp, _speeds(1.4), 1.0)[1][0] > delta[0] + 20.0
 
 
-def test_the_pass_is_the_posterior_mean_over_its_lines():
-    # the compiled pass against every line's likelihood read from the candidates directly
+def test_the_pass_is_the_posterior_mean_over_its_lines(monkeypatch):
+    # the compiled pass against every line's likelihood read from the candidates directly, in
+    # one stage (the later ones draw the same lines within a smaller box)
+    monkeypatch.setattr(line, "LINE_STAGES", 1)
     true = _walkers(3, 1.1, T=5, seed=5)
     xy, lp, cells = grid_candidates(true, radius=2)
     lp = lp + np.random.default_rng(1).uniform(-2, 0, lp.shape)
@@ -95,6 +97,25 @@ def test_the_pass_is_the_posterior_mean_over_its_lines():
         assert np.allclose(track[b], (w[:, None, None] * p).sum(0) / w.sum(), atol=1e-9)
         expected = ll.max() + np.log(w.mean()) - lp[b].max(-1).sum()
         assert delta[b] == pytest.approx(expected, abs=1e-9)
+
+
+def test_a_second_stage_reads_the_posterior_as_many_more_lines_do(monkeypatch):
+    # steady walkers at speeds between the measured ones, candidates with noisy likelihoods: the
+    # two-stage pass lies nearer one stage of 32 times its lines than one stage of its own does
+    true = _walkers(24, 1.23, seed=7)
+    xy, lp, cells = grid_candidates(true, radius=2)
+    lp = lp + np.random.default_rng(2).normal(0, 1.5, lp.shape)
+    speeds = _speeds(1.1, 1.15, 1.2, 1.25, 1.3, 1.4)
+    two, d_two = line_track(cells, xy, lp, speeds, 1.0)
+    monkeypatch.setattr(line, "LINE_STAGES", 1)
+    one, d_one = line_track(cells, xy, lp, speeds, 1.0)
+    monkeypatch.setattr(line, "_OFFSETS", line._offsets(32 * line.LINE_LINES))
+    dense, d_dense = line_track(cells, xy, lp, speeds, 1.0)
+    off_two = np.linalg.norm(two - dense, axis=-1).mean()
+    off_one = np.linalg.norm(one - dense, axis=-1).mean()
+    assert off_two < 0.5 * off_one
+    # and its evidence is the same integral: as near the dense one's as the first stage's is
+    assert np.abs(d_two - d_dense).mean() < max(np.abs(d_one - d_dense).mean(), 0.05)
 
 
 def test_walk_speeds_are_measured_on_the_walkers():

@@ -1,14 +1,17 @@
 """Smoothing of per-step fingerprint matches: Kalman (one match per step) and hidden-Markov (many
 candidates per step), with the motion densities the hidden-Markov smoothers score steps by and the acceleration
-memory their sampled paths are weighed by, and the smoother of drivers along their street routes."""
+memory their sampled paths are weighed by, the smoother of drivers along their street routes, and
+the walkers' straight lines and lines that stop once."""
 
 from .forecast import carry, extrapolate, forecast_tracks
 from .hmm import candidate_features, cell_mean, motion_posterior, subcell_mean, velocity_posterior
 from .kalman import kalman_forecast, rts_smoother
+from .line import line_track
 from .memory import MotionMemory
 from .motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
 from .online import CandidateFilter
 from .route import route_track, street_routes
+from .stops import stop_track
 
 __all__ = [
     "CandidateFilter",
@@ -21,11 +24,13 @@ __all__ = [
     "extrapolate",
     "forecast_tracks",
     "kalman_forecast",
+    "line_track",
     "motion_posterior",
     "route_track",
     "rts_smoother",
     "snap_to_lattice",
     "speed_scaled",
+    "stop_track",
     "street_routes",
     "subcell_mean",
     "velocity_posterior",

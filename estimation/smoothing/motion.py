@@ -37,6 +37,7 @@ from torch import nn
 from ._positions import checked_positions
 from .line import walk_speeds
 from .route import ROUTE_BINS
+from .stops import walk_restarts
 
 __all__ = [
     "MixtureMotion",
@@ -254,6 +255,10 @@ class MotionTable(nn.Module):
         # of their steps per length, in bins of 1 / LINE_BINS of the table's unit; none until
         # measured (no such pass).
         self.register_buffer("walk_speeds", torch.zeros(0, dtype=torch.float64))
+        # How they set off after a stop (fit_walks), for the lines that stop once: the share of
+        # those steps per length (the same bins), and the share of moving steps a stop follows.
+        self.register_buffer("walk_restarts", torch.zeros(0, dtype=torch.float64))
+        self.register_buffer("walk_stop", torch.tensor(0.0, dtype=torch.float64))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         if prefix + "fitted" not in state_dict:
@@ -264,7 +269,7 @@ class MotionTable(nn.Module):
         # place tables existed has none (no place preference).
         for name in (
             "place_speed", "log_place", "place_origin", "place_res", "restart_step", "route_speeds", "route_change",
-            "walk_speeds",
+            "walk_speeds", "walk_restarts", "walk_stop",
         ):  # fmt: skip
             key = prefix + name
             if key in state_dict:
@@ -357,9 +362,14 @@ class MotionTable(nn.Module):
         as they are (not snapped), in the table's units: ``walk_speeds``, the share of the steps
         longer than half a unit of users whose median step is at most ``speed`` (the drivers are
         :meth:`fit_drives`'s), per length in bins of ``1 / LINE_BINS`` of the unit (what
-        :func:`~estimation.smoothing.line.line_track` weighs its lines by). Empty where there is
-        no such step. Returns ``self``."""
+        :func:`~estimation.smoothing.line.line_track` weighs its lines by), and how they set off
+        after a stop: ``walk_restarts`` and ``walk_stop``
+        (:func:`~estimation.smoothing.stops.walk_restarts`). Empty where there is no such step.
+        Returns ``self``."""
         self.walk_speeds = torch.from_numpy(walk_speeds(positions, speed))
+        restarts, stop = walk_restarts(positions, speed)
+        self.walk_restarts = torch.from_numpy(restarts)
+        self.walk_stop = torch.tensor(stop, dtype=torch.float64)
         return self
 
     @torch.no_grad()

@@ -1,0 +1,120 @@
+"""Walkers who stop once, smoothed along their two lines (estimation.smoothing.stops)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from estimation.smoothing.line import LINE_BINS, line_track, line_weight
+from estimation.smoothing.motion import MotionTable
+from estimation.smoothing.stops import stop_track, walk_restarts
+from tests.helpers.candidates import grid_candidates
+from tests.test_line import _estimator, _speeds, _walkers
+
+
+def _stoppers(n: int, step: float, stop: int, T: int = 7, seed: int = 0) -> np.ndarray:
+    """``n`` walks at ``step`` metres per step that stand still from step ``stop`` to the next,
+    then go on at the same speed in a heading of their own."""
+    rng = np.random.default_rng(seed)
+    h1, h2 = rng.uniform(0, 2 * np.pi, (2, n))
+    start = rng.uniform(0, 1, (n, 2)) + 20.0
+    out = np.empty((n, T, 2))
+    for t in range(T):
+        if t <= stop:
+            d = step * t * np.stack([np.cos(h1), np.sin(h1)], -1)
+        else:
+            d = step * stop * np.stack([np.cos(h1), np.sin(h1)], -1)
+            d = d + step * (t - stop - 1) * np.stack([np.cos(h2), np.sin(h2)], -1)
+        out[:, t] = start + d
+    return out
+
+
+def test_restarts_and_stops_are_measured_on_the_walkers():
+    t = np.arange(5.0)
+    walkers = np.stack(
+        [
+            np.stack([np.r_[0, 1.4, 1.4, 2.8, 4.2], np.zeros(5)], -1),  # a stop, set off at 1.4
+            np.stack([np.r_[0, 1.1, 2.2, 2.2, 3.9], np.ones(5)], -1),  # a stop, set off at 1.7
+            np.stack([1.4 * t, 2 * np.ones(5)], -1),
+        ]
+    )
+    driver = np.stack([8.0 * t, np.zeros(5)], -1)[None]  # its stop is not a walker's
+    driver[0, 2:] -= 8.0
+    restarts, share = walk_restarts(np.concatenate([walkers, driver]), 5.0)
+    assert np.flatnonzero(restarts).tolist() == [28, 34] and restarts[28] == pytest.approx(0.5)
+    # moving steps a stop follows: 2 of the 7 walkers' moving steps with a step after them
+    assert share == pytest.approx(2 / 7)
+    assert walk_restarts(walkers[2:], 5.0)[0].size == 0 and walk_restarts(walkers[2:], 5.0)[1] == 0.0
+    table = MotionTable().fit_walks(walkers, 5.0)
+    assert np.array_equal(table.walk_restarts.numpy(), walk_restarts(walkers, 5.0)[0])
+    assert float(table.walk_stop) == pytest.approx(walk_restarts(walkers, 5.0)[1])
+
+
+def test_a_walker_who_stops_is_read_along_its_two_lines():
+    # 1.4 m per step, a stop at step 3, then 1.4 m per step in another heading: no straight line
+    # explains it, the stop family does, to well inside the cells
+    true = _stoppers(30, 1.4, stop=3)
+    xy, lp, cells = grid_candidates(true)
+    speeds, restarts = _speeds(1.4), _speeds(1.4)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    track, mixed = stop_track(cells, xy, lp, speeds, restarts, 0.1, 1.0, line, delta)
+    cell_err = np.linalg.norm(cells - true, axis=-1).mean()
+    assert np.linalg.norm(track - true, axis=-1).mean() < 0.6 * cell_err
+    assert (line_weight(mixed) > 0.4).all() and (line_weight(delta) < 0.01).all()
+    assert (mixed > delta + 10).all()
+    # restarting at a speed the walkers never set off at, the stop family explains nothing
+    _, wrong = stop_track(cells, xy, lp, speeds, _speeds(0.6), 0.1, 1.0, line, delta)
+    assert np.median(line_weight(wrong)) < 0.1 and (wrong < mixed - 5).mean() >= 0.85
+
+
+def test_walkers_without_a_short_step_keep_their_lines():
+    true = _walkers(20, 1.4)
+    xy, lp, cells = grid_candidates(true)
+    speeds = _speeds(1.4)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    track, mixed = stop_track(cells, xy, lp, speeds, _speeds(1.4), 0.1, 1.0, line, delta)
+    assert np.array_equal(track, line) and np.array_equal(mixed, delta)
+    # nor does a model that measured no restarts, or no stops
+    for restarts, share in ((np.zeros(0), 0.1), (_speeds(1.4), 0.0)):
+        t2, d2 = stop_track(cells, xy, lp, speeds, restarts, share, 1.0, line, delta)
+        assert np.array_equal(t2, line) and np.array_equal(d2, delta)
+
+
+def test_a_straight_walker_who_slows_at_one_step_stays_on_its_line():
+    # a short step that is not a stop: the straight family keeps most of the weight
+    true = _walkers(20, 1.4, seed=4)
+    xy, lp, cells = grid_candidates(true)
+    speeds = _speeds(1.4)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    short = cells.copy()
+    short[:, 3] = np.rint(0.5 * (true[:, 2] + true[:, 3]))  # the track's step 2 -> 3 under 1 m
+    track, _ = stop_track(short, xy, lp, speeds, speeds, 0.1, 1.0, line, delta)
+    assert np.linalg.norm(track - line, axis=-1).mean() < 0.05
+
+
+def test_the_estimator_mixes_stops_in_where_its_model_measured_them():
+    est = _estimator(_speeds(1.4))
+    true = _stoppers(8, 1.4, stop=2, T=6, seed=1)
+    xy, lp, cells = grid_candidates(true, radius=2)
+    x = (torch.from_numpy(xy).float(), torch.from_numpy(lp).float()[..., None])
+    tracked = torch.from_numpy(cells).float()
+    fine = est.net.motion_fine
+    fine.walk_restarts, fine.walk_stop = torch.zeros(0, dtype=torch.float64), torch.tensor(0.0)
+    plain = est._along_lines(tracked, x)  # as a model saved before restarts were measured
+    fine.walk_restarts = torch.from_numpy(_speeds(1.4))
+    fine.walk_stop = torch.tensor(0.1, dtype=torch.float64)
+    out = est._along_lines(tracked, x)
+    line, delta = line_track(cells, xy.astype(np.float32), lp.astype(np.float32), _speeds(1.4), 1.0)
+    mixed, d = stop_track(cells, xy, lp, _speeds(1.4), _speeds(1.4), 0.1, 1.0, line, delta)
+    w = line_weight(d)[:, None, None]
+    assert np.allclose(out.numpy(), w * mixed + (1 - w) * cells, atol=1e-5)
+    err = lambda a: np.linalg.norm(a.numpy() - true, axis=-1).mean()  # noqa: E731
+    assert err(out) < 0.8 * err(plain)
+
+
+def test_restart_bins_are_the_line_bins():
+    # the restart table's bins are the walk speeds' (1 / LINE_BINS of a spacing)
+    walker = np.stack([np.r_[0, 1.0, 1.0, 2.25], np.zeros(4)], -1)[None]
+    restarts, _ = walk_restarts(walker, 5.0)
+    assert np.flatnonzero(restarts).tolist() == [round(1.25 * LINE_BINS)]

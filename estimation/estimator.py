@@ -32,7 +32,7 @@ from .smoothing.line import LINE_MIN_STEPS, line_track, line_weight
 from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
 from .smoothing.route import route_track
-from .smoothing.stops import stop_track
+from .smoothing.two_lines import FreeRaster, free_raster, two_line_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -268,10 +268,10 @@ class Estimator(nn.Module):
         Whether a grid-reading network's tracks of users who walk (a median step no longer than
         the place tables' speed) of at least :data:`~estimation.smoothing.line.LINE_MIN_STEPS`
         steps are mixed with their straight-line tracks at the speeds measured on the training
-        users (:func:`~estimation.smoothing.line.line_track`), and with lines that stop once
-        where the model measured how its walkers set off after a stop
-        (:func:`~estimation.smoothing.stops.stop_track`), each by how well the lines explain its
-        steps, before they are returned (default True; only where the model measured those
+        users (:func:`~estimation.smoothing.line.line_track`), and with walks of two lines
+        (:func:`~estimation.smoothing.two_lines.two_line_track`): a turn where the attached grid's
+        free space ends ahead, and a stop where the model measured how its walkers set off after
+        one; each by how well the lines explain its steps, before they are returned (default True; only where the model measured those
         speeds). :meth:`OnlineTracker.update`'s current positions do not.
     """
 
@@ -290,6 +290,7 @@ class Estimator(nn.Module):
         self._steady: tuple[tuple, tuple | None] | None = None  # (stamp, _steady_motion's tables)
         self._lanes: tuple[tuple, tuple] | None = None  # (tables' and map's stamp, lane copies)
         self._street_net: tuple[tuple, StreetNetwork | None] | None = None  # (map's stamp, graph)
+        self._free: tuple[np.ndarray, FreeRaster] | None = None  # (the matcher's grid points, their raster)
         self.net = build_network(
             config.model,
             n_beams,
@@ -599,7 +600,7 @@ class Estimator(nn.Module):
 
     def _along_lines(self, tracked: torch.Tensor, x: Any) -> torch.Tensor:
         """``tracked (B, T, 2)`` metres with each user who walks mixed with its straight-line
-        track, or its lines that stop once (:attr:`line_tracking`), by their weight
+        track, or its walks of two lines (:attr:`line_tracking`), by their weight
         (:func:`~estimation.smoothing.line.line_weight`), from the candidates of the inputs
         ``x``; as it is where that does not apply."""
         fine = self.net.motion_fine
@@ -614,15 +615,22 @@ class Estimator(nn.Module):
             return tracked
         xy, lp = np.asarray(x[0], np.float64)[walk], np.asarray(x[1][..., 0], np.float64)[walk]
         line, delta = line_track(t[walk], xy, lp, fine.walk_speeds.numpy(), step)
-        if len(fine.walk_restarts):  # models saved before they were measured stop nowhere
-            line, delta = stop_track(
-                t[walk], xy, lp, fine.walk_speeds.numpy(), fine.walk_restarts.numpy(), float(fine.walk_stop), step,
-                line, delta,
-            )  # fmt: skip
+        # models saved before the restart speeds were measured weigh no stops
+        line, delta = two_line_track(
+            t[walk], xy, lp, fine.walk_speeds.numpy(), step, line, delta, fine.walk_restarts.numpy(),
+            float(fine.walk_stop), self._free_space(),
+        )  # fmt: skip
         w = line_weight(delta)[:, None, None]
         out = tracked.clone()
         out[torch.from_numpy(walk)] = torch.from_numpy(w * line + (1 - w) * t[walk]).to(out.dtype)
         return out
+
+    def _free_space(self) -> FreeRaster:
+        """The attached grid's free space (its points with fingerprints), made once per grid."""
+        xy = self.matcher.grid_xy
+        if self._free is None or self._free[0] is not xy:
+            self._free = (xy, free_raster(xy, float(self.net.grid_step)))
+        return self._free[1]
 
     def _route_tracks(self, tracked: torch.Tensor, xy: Any, lp: Any) -> torch.Tensor:
         """:meth:`_along_routes` from the steps' candidates ``xy (B, T, k, 2)`` metres and their

@@ -167,6 +167,16 @@ def fill_raster(xy, lp, centres, spacing, raster, ox, oy):  # pragma: no cover -
 
 
 @njit(cache=True, nogil=True)
+def raster_at(raster, t, x, y, ox, oy, spacing):  # pragma: no cover - compiled
+    """Step ``t``'s log-likelihood on :func:`fill_raster`'s raster at ``(x, y)`` metres (its edge
+    beyond it)."""
+    side = raster.shape[1]
+    i = min(max(int(np.rint((x - ox[t]) / spacing)), 0), side - 1)
+    j = min(max(int(np.rint((y - oy[t]) / spacing)), 0), side - 1)
+    return raster[t, i, j]
+
+
+@njit(cache=True, nogil=True)
 def _weigh_lines(
     cx,
     cy,
@@ -193,7 +203,6 @@ def _weigh_lines(
     and y and of the heading, lowest and highest) and the speed bins ``kb_lo..kb_hi``; their
     log-likelihoods into ``ll``, their points into ``px``, ``py``. Returns the largest."""
     T = ts.shape[0]
-    side = raster.shape[1]
     n_kb = kb_hi - kb_lo + 1
     top = -np.inf
     for n in range(offsets.shape[0]):
@@ -207,9 +216,7 @@ def _weigh_lines(
         for t in range(T):
             x, y = ax + ts[t] * ux, ay + ts[t] * uy
             px[n, t], py[n, t] = x, y
-            i = min(max(int(np.rint((x - ox[t]) / spacing)), 0), side - 1)
-            j = min(max(int(np.rint((y - oy[t]) / spacing)), 0), side - 1)
-            v += raster[t, i, j]
+            v += raster_at(raster, t, x, y, ox, oy, spacing)
         ll[n] = v
         top = max(top, v)
     return top

@@ -37,7 +37,7 @@ from torch import nn
 from ._positions import checked_positions
 from .line import walk_speeds
 from .route import ROUTE_BINS
-from .stops import walk_restarts
+from .two_lines import walk_restarts
 
 __all__ = [
     "MixtureMotion",
@@ -255,7 +255,7 @@ class MotionTable(nn.Module):
         # of their steps per length, in bins of 1 / LINE_BINS of the table's unit; none until
         # measured (no such pass).
         self.register_buffer("walk_speeds", torch.zeros(0, dtype=torch.float64))
-        # How they set off after a stop (fit_walks), for the lines that stop once: the share of
+        # How they set off after a stop (fit_walks), for the walks of two lines that stop: the share of
         # those steps per length (the same bins), and the share of moving steps a stop follows.
         self.register_buffer("walk_restarts", torch.zeros(0, dtype=torch.float64))
         self.register_buffer("walk_stop", torch.tensor(0.0, dtype=torch.float64))
@@ -364,7 +364,7 @@ class MotionTable(nn.Module):
         :meth:`fit_drives`'s), per length in bins of ``1 / LINE_BINS`` of the unit (what
         :func:`~estimation.smoothing.line.line_track` weighs its lines by), and how they set off
         after a stop: ``walk_restarts`` and ``walk_stop``
-        (:func:`~estimation.smoothing.stops.walk_restarts`). Empty where there is no such step.
+        (:func:`~estimation.smoothing.two_lines.walk_restarts`). Empty where there is no such step.
         Returns ``self``."""
         self.walk_speeds = torch.from_numpy(walk_speeds(positions, speed))
         restarts, stop = walk_restarts(positions, speed)

@@ -1,4 +1,4 @@
-"""Walkers who stop once, smoothed along their two lines (estimation.smoothing.stops)."""
+"""Walkers whose walk is two lines: a stop, or a turn at a wall (estimation.smoothing.two_lines)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import torch
 
 from estimation.smoothing.line import LINE_BINS, line_track, line_weight
 from estimation.smoothing.motion import MotionTable
-from estimation.smoothing.stops import stop_track, walk_restarts
+from estimation.smoothing.two_lines import free_raster, two_line_track, walk_restarts
 from tests.helpers.candidates import grid_candidates
 from tests.test_line import _estimator, _speeds, _walkers
 
@@ -58,13 +58,13 @@ def test_a_walker_who_stops_is_read_along_its_two_lines():
     xy, lp, cells = grid_candidates(true)
     speeds, restarts = _speeds(1.4), _speeds(1.4)
     line, delta = line_track(cells, xy, lp, speeds, 1.0)
-    track, mixed = stop_track(cells, xy, lp, speeds, restarts, 0.1, 1.0, line, delta)
+    track, mixed = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, restarts, 0.1)
     cell_err = np.linalg.norm(cells - true, axis=-1).mean()
     assert np.linalg.norm(track - true, axis=-1).mean() < 0.6 * cell_err
     assert (line_weight(mixed) > 0.4).all() and (line_weight(delta) < 0.01).all()
     assert (mixed > delta + 10).all()
     # restarting at a speed the walkers never set off at, the stop family explains nothing
-    _, wrong = stop_track(cells, xy, lp, speeds, _speeds(0.6), 0.1, 1.0, line, delta)
+    _, wrong = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, _speeds(0.6), 0.1)
     assert np.median(line_weight(wrong)) < 0.1 and (wrong < mixed - 5).mean() >= 0.85
 
 
@@ -73,11 +73,11 @@ def test_walkers_without_a_short_step_keep_their_lines():
     xy, lp, cells = grid_candidates(true)
     speeds = _speeds(1.4)
     line, delta = line_track(cells, xy, lp, speeds, 1.0)
-    track, mixed = stop_track(cells, xy, lp, speeds, _speeds(1.4), 0.1, 1.0, line, delta)
+    track, mixed = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, _speeds(1.4), 0.1)
     assert np.array_equal(track, line) and np.array_equal(mixed, delta)
     # nor does a model that measured no restarts, or no stops
     for restarts, share in ((np.zeros(0), 0.1), (_speeds(1.4), 0.0)):
-        t2, d2 = stop_track(cells, xy, lp, speeds, restarts, share, 1.0, line, delta)
+        t2, d2 = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, restarts, share)
         assert np.array_equal(t2, line) and np.array_equal(d2, delta)
 
 
@@ -89,7 +89,7 @@ def test_a_straight_walker_who_slows_at_one_step_stays_on_its_line():
     line, delta = line_track(cells, xy, lp, speeds, 1.0)
     short = cells.copy()
     short[:, 3] = np.rint(0.5 * (true[:, 2] + true[:, 3]))  # the track's step 2 -> 3 under 1 m
-    track, _ = stop_track(short, xy, lp, speeds, speeds, 0.1, 1.0, line, delta)
+    track, _ = two_line_track(short, xy, lp, speeds, 1.0, line, delta, speeds, 0.1)
     assert np.linalg.norm(track - line, axis=-1).mean() < 0.05
 
 
@@ -106,7 +106,9 @@ def test_the_estimator_mixes_stops_in_where_its_model_measured_them():
     fine.walk_stop = torch.tensor(0.1, dtype=torch.float64)
     out = est._along_lines(tracked, x)
     line, delta = line_track(cells, xy.astype(np.float32), lp.astype(np.float32), _speeds(1.4), 1.0)
-    mixed, d = stop_track(cells, xy, lp, _speeds(1.4), _speeds(1.4), 0.1, 1.0, line, delta)
+    mixed, d = two_line_track(
+        cells, xy, lp, _speeds(1.4), 1.0, line, delta, _speeds(1.4), 0.1, est._free_space()
+    )
     w = line_weight(d)[:, None, None]
     assert np.allclose(out.numpy(), w * mixed + (1 - w) * cells, atol=1e-5)
     err = lambda a: np.linalg.norm(a.numpy() - true, axis=-1).mean()  # noqa: E731
@@ -118,3 +120,57 @@ def test_restart_bins_are_the_line_bins():
     walker = np.stack([np.r_[0, 1.0, 1.0, 2.25], np.zeros(4)], -1)[None]
     restarts, _ = walk_restarts(walker, 5.0)
     assert np.flatnonzero(restarts).tolist() == [round(1.25 * LINE_BINS)]
+
+
+def _turners(n: int, step: float = 1.4, T: int = 7, at: int = 3, seed: int = 0):
+    """``n`` walks east at ``step`` metres per step that turn north at step ``at`` (a wall ahead),
+    and the free space: every grid point east of the turn's column blocked."""
+    rng = np.random.default_rng(seed)
+    start = rng.uniform(0, 1, (n, 2)) + np.array([20.0, 20.0]) + 40.0 * np.arange(n)[:, None] * [0, 1]
+    t = np.arange(T)
+    east = step * np.minimum(t, at)
+    north = step * np.maximum(t - at, 0)
+    true = start[:, None] + np.stack([east, north], -1)[None]
+    free = np.ones((80, 40 * n + 60), bool)
+    for k in range(n):
+        col = int(np.rint(true[k, at, 0])) + 1
+        row = slice(int(start[k, 1]) - 10, int(start[k, 1]) + 20)
+        free[col:, row] = False
+    return true, (free, np.zeros(2), 1.0)
+
+
+def test_a_walker_who_turns_at_a_wall_is_read_along_its_two_lines():
+    true, free = _turners(12)
+    xy, lp, cells = grid_candidates(true)
+    speeds = _speeds(1.4)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    track, mixed = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, free=free)
+    err = lambda a: np.linalg.norm(a - true, axis=-1).mean()  # noqa: E731
+    assert err(track) < 0.5 * err(cells) and (mixed > delta + 10).all()
+    w = line_weight(mixed)[:, None, None]
+    assert err(w * track + (1 - w) * cells) < 0.75 * err(cells)
+    # no wall ahead anywhere: no turn is weighed, the straight lines stand as they were
+    open_space = (np.ones_like(free[0]), free[1], free[2])
+    same, d2 = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, free=open_space)
+    assert np.array_equal(same, line) and np.array_equal(d2, delta)
+
+
+def test_a_turn_with_the_way_ahead_free_is_weighed_down():
+    # the same walks with the wall moved two columns further east: the straight way ahead of the
+    # true turn is free, so its lines weigh TURN_FREE instead of TURN_BLOCKED
+    true, (free, origin, res) = _turners(12)
+    far = np.ones_like(free)
+    far[2:] = free[:-2]
+    xy, lp, cells = grid_candidates(true)
+    speeds = _speeds(1.4)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    _, at_wall = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, free=(free, origin, res))
+    _, past = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, free=(far, origin, res))
+    assert np.median(at_wall - past) > 5.0
+
+
+def test_the_free_raster_holds_the_grid_points_given():
+    xy = np.array([[10.0, 5.0], [12.0, 5.0], [10.0, 7.0]])
+    free, origin, res = free_raster(xy, 2.0)
+    assert free.shape == (2, 2) and np.array_equal(origin, [10.0, 5.0]) and res == 2.0
+    assert free.tolist() == [[True, True], [True, False]]

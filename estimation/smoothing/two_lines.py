@@ -1,0 +1,478 @@
+"""Tracks of walkers whose walk is two lines: a stop between them, or a turn away from a wall.
+
+A walker who stops for a step, or turns because a building blocks the way ahead, leaves no
+straight line through its candidates, so the straight-line pass (:mod:`~estimation.smoothing.line`)
+gives it up to the smoother, though both pieces of its walk are lines at measured speeds that
+pin it down as well as a straight walk does. :func:`two_line_track` weighs, for each walker, two
+families of such walks, each a family per step where the track allows one:
+
+* **a stop** at a step where the track moves less than :data:`STOP_GATE` spacings: the first
+  piece ending where the user stands, at one of the measured walk speeds
+  (:func:`~estimation.smoothing.line.walk_speeds`); the user standing there one step; the second
+  piece setting off from there at one of the measured restart speeds (:func:`walk_restarts`: the
+  training users set off after a stop at a handful of speeds, the generator's own mean speed for
+  ours) in a heading of its own;
+* **a turn at a wall** at a step where the way straight ahead of the track meets a grid point
+  outside the free space within a spacing either side: the two pieces meeting at that step, at
+  one speed, the second in a heading of its own. Each line is weighed by whether its own way
+  straight ahead is blocked (:data:`TURN_BLOCKED`) or free (:data:`TURN_FREE`): people turn where
+  a wall is ahead, and almost nowhere else at that angle.
+
+Each family's lines are drawn in :data:`TWO_LINE_STAGES` stages around its posterior, as the
+straight lines are, over six coordinates (where the pieces meet, the two headings and the two
+speeds). The straight lines and every family are mixed by their evidence, a stop weighed by the
+share of the training walkers' moving steps a stop followed (:func:`walk_restarts`) times
+``exp(STOP_BIAS)``. The mixture's evidence takes the place of the straight lines' own ``delta``
+(the same units: a user no family applies to keeps both).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from mmwsim._threads import batch_map
+
+from ._positions import checked_positions
+from .line import (
+    _MIN_STEP,
+    LINE_BINS,
+    LINE_LINES,
+    LINE_REACH,
+    LINE_SPEEDS,
+    LINE_TURN,
+    _offsets,
+    fill_raster,
+    raster_at,
+)
+
+__all__ = [
+    "STOP_BIAS",
+    "STOP_GATE",
+    "TURN_BLOCKED",
+    "TURN_FREE",
+    "FreeRaster",
+    "free_raster",
+    "two_line_track",
+    "walk_restarts",
+]
+
+STOP_GATE = 1.0
+"""Grid spacings: a step of the track shorter than this may be a stop, and is weighed as one."""
+TWO_LINE_STAGES = 3
+"""Stages of lines per family, each within the box of the previous one's posterior."""
+STOP_BIAS = 1.4
+"""Nats added to the log share of stops in a stop family's prior. Chosen on 1000 validation users
+per kind of ``default.zarr`` (three draws; its stop share is 0.091): priors of -1.6 to 0 nats in
+all were within 0.05 % of each other on the pedestrians, -2.2 (the share against the steps that
+change nothing) 0.07 % behind."""
+TURN_BLOCKED = 4.0
+"""Nats by which a line that turns where its way straight ahead is blocked is weighed up."""
+TURN_FREE = -12.0
+"""Nats by which a line that turns where its way straight ahead is free is weighed down. With
+:data:`TURN_BLOCKED`, chosen on 1000 validation users per kind of ``default.zarr`` (three
+draws; blocked 2 to 8 nats, free -8 to -16: pedestrians -0.06 to -0.35 %, cyclists -0.5 to
+-0.7 %)."""
+TWO_LINE_WINDOW = 0.8
+"""Grid spacings per step: the walk speeds weighed for the first piece lie this near its fitted
+line's."""
+TWO_LINE_TURN = 0.5
+"""Radians a piece's heading may differ from its fitted line's where it spans three steps or
+fewer (:data:`~estimation.smoothing.line.LINE_TURN` where longer)."""
+TWO_LINE_HALF = 5
+"""Grid spacings either side of each step's tracked point that its raster of candidates spans."""
+_OFFSETS6 = _offsets(LINE_LINES, 6)
+
+FreeRaster = tuple[np.ndarray, np.ndarray, float]
+"""The free space on the grid: ``(free (nx, ny) bool, origin (2,) metres, spacing metres)``, cell
+``(i, j)`` the grid point at ``origin + (i, j) * spacing``."""
+
+
+def free_raster(grid_xy: np.ndarray, spacing: float) -> FreeRaster:
+    """The free space of a grid whose free points are ``grid_xy (G, 2)`` metres (the points a data
+    set holds fingerprints at: outside the buildings), every other grid point blocked."""
+    xy = np.asarray(grid_xy, dtype=np.float64).reshape(-1, 2)
+    if not len(xy):
+        return np.zeros((1, 1), bool), np.zeros(2), float(spacing)
+    origin = xy.min(axis=0)
+    ij = np.rint((xy - origin) / spacing).astype(np.int64)
+    free = np.zeros(tuple(ij.max(axis=0) + 1), dtype=bool)
+    free[ij[:, 0], ij[:, 1]] = True
+    return free, origin, float(spacing)
+
+
+def walk_restarts(positions: np.ndarray, max_step: float) -> tuple[np.ndarray, float]:
+    """How the users who walk set off after a stop, and how often they stop.
+
+    Parameters
+    ----------
+    positions : (n, L >= 2, 2) float
+        Trajectories as they are (not snapped), in grid spacings.
+    max_step : float
+        The walkers' largest median step (the place tables' speed), grid spacings.
+
+    Returns
+    -------
+    restarts : (V,) float64
+        The share of the steps that follow a stop (one no longer than half a spacing), per length
+        in bins of ``1 / LINE_BINS`` of a spacing, summing to 1 (empty where there is none).
+    stop_share : float
+        The share of the moving steps followed by a stop (0 where there is none).
+    """
+    p = checked_positions(positions)
+    step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
+    s = step[np.median(step, axis=1) <= max_step]
+    moving = s[:, :-1] > _MIN_STEP
+    after = s[:, 1:][(s[:, :-1] <= _MIN_STEP) & (s[:, 1:] > _MIN_STEP)]
+    if not after.size or not moving.any():
+        return np.zeros(0), 0.0
+    counts = np.bincount(np.rint(after * LINE_BINS).astype(np.int64))
+    return counts / counts.sum(), float((moving & (s[:, 1:] <= _MIN_STEP)).sum() / moving.sum())
+
+
+def two_line_track(
+    tracked: np.ndarray,
+    xy: np.ndarray,
+    lp: np.ndarray,
+    speeds: np.ndarray,
+    spacing: float,
+    line: np.ndarray,
+    delta: np.ndarray,
+    restarts: np.ndarray | None = None,
+    stop_share: float = 0.0,
+    free: FreeRaster | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The straight-line tracks ``line``, ``delta`` of
+    :func:`~estimation.smoothing.line.line_track` mixed with walks of two lines (see the
+    module's text).
+
+    Parameters
+    ----------
+    tracked, xy, lp, speeds, spacing
+        As :func:`~estimation.smoothing.line.line_track` took them.
+    line : (B, T, 2) float, metres
+        The straight lines' posterior mean.
+    delta : (B,) float
+        Their evidence, nats.
+    restarts : (V,) float, optional
+        The measured share of the steps after a stop per length bin (:func:`walk_restarts`);
+        no stops are weighed without them.
+    stop_share : float
+        The measured share of moving steps followed by a stop (no stops are weighed at 0).
+    free : FreeRaster, optional
+        The grid's free space (:func:`free_raster`); no turns at walls are weighed without it.
+
+    Returns
+    -------
+    track : (B, T, 2) float64, metres
+        The mixture's posterior mean; ``line`` where no family applies.
+    delta : (B,) float64
+        The mixture's evidence, nats, in the units of the straight lines'.
+    """
+    line = np.ascontiguousarray(line, dtype=np.float64)
+    delta = np.asarray(delta, dtype=np.float64)
+    B, T = line.shape[:2]
+    stops = restarts is not None and len(restarts) > 0 and stop_share > 0
+    if B == 0 or T < 3 or not len(speeds) or not (stops or free is not None):
+        return line.copy(), delta.copy()
+    mask, origin, res = free if free is not None else (np.zeros((0, 0), bool), np.zeros(2), 1.0)
+    return batch_map(
+        _two_line_kernel, 5, np.ascontiguousarray(tracked, np.float64), np.ascontiguousarray(xy, np.float64),
+        np.ascontiguousarray(lp, np.float64), line, delta, np.asarray(speeds, np.float64),
+        np.asarray(restarts if stops else np.zeros(0), np.float64),
+        float(np.log(stop_share) + STOP_BIAS) if stops else -np.inf, float(spacing), _OFFSETS6,
+        np.ascontiguousarray(mask), np.asarray(origin, np.float64), float(res),
+    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _fit(tr, a, b):  # pragma: no cover - compiled
+    """Least-squares velocity per step ``(vx, vy)`` through the track's steps ``a..b``."""
+    mid = (a + b) / 2.0
+    tt, vx, vy = 0.0, 0.0, 0.0
+    for t in range(a, b + 1):
+        tt += (t - mid) ** 2
+    for t in range(a, b + 1):
+        vx += (t - mid) * tr[t, 0] / tt
+        vy += (t - mid) * tr[t, 1] / tt
+    return vx, vy
+
+
+@njit(cache=True, nogil=True)
+def _bins(prior, lo, hi):  # pragma: no cover - compiled
+    """The bins ``lo..hi`` of ``prior`` that hold any share, and their log shares."""
+    n = 0
+    for j in range(lo, hi + 1):
+        if prior[j] > 0.0:
+            n += 1
+    bins, log_prior = np.empty(n, np.int64), np.empty(n)
+    k = 0
+    for j in range(lo, hi + 1):
+        if prior[j] > 0.0:
+            bins[k], log_prior[k] = j, np.log(prior[j])
+            k += 1
+    return bins, log_prior
+
+
+@njit(cache=True, nogil=True)
+def _blocked(x, y, hx, hy, free, origin, res):  # pragma: no cover - compiled
+    """Whether the step from ``(x, y)`` by ``(hx, hy)`` metres meets a blocked grid point at a
+    quarter, a half, three quarters or all of its length (off the raster counts as free)."""
+    for q in range(1, 5):
+        i = int(np.rint((x + 0.25 * q * hx - origin[0]) / res))
+        j = int(np.rint((y + 0.25 * q * hy - origin[1]) / res))
+        if 0 <= i < free.shape[0] and 0 <= j < free.shape[1] and not free[i, j]:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _wall_ahead(tr, jv, free, origin, res, spacing):  # pragma: no cover - compiled
+    """Whether the way straight ahead of the track at step ``jv`` (its last step carried on for
+    one and a half steps) meets a blocked grid point within a spacing either side."""
+    dx, dy = tr[jv, 0] - tr[jv - 1, 0], tr[jv, 1] - tr[jv - 1, 1]
+    n = np.hypot(dx, dy)
+    nx, ny = -dy / n * spacing, dx / n * spacing
+    for side in (-1.0, 0.0, 1.0):
+        x, y = tr[jv, 0] + side * nx, tr[jv, 1] + side * ny
+        if _blocked(x, y, dx, dy, free, origin, res) or _blocked(x, y, 1.5 * dx, 1.5 * dy, free, origin, res):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _weigh_two_lines(
+    stand,
+    jv,
+    at,
+    head,
+    turn,
+    box,
+    bins_a,
+    lp_a,
+    range_a,
+    bins_b,
+    lp_b,
+    range_b,
+    offsets,
+    ox,
+    oy,
+    raster,
+    spacing,
+    free,
+    origin,
+    res,
+):  # pragma: no cover - compiled
+    """One stage of a family of walks of two lines that meet at step ``jv``: within
+    :data:`LINE_REACH` of ``at (2,)``, the two pieces' headings within ``turn (2,)`` of
+    ``head (2,)``, their speeds in the bins ``range_a``, ``range_b`` (lowest, highest) of
+    ``bins_a``, ``bins_b``; ``box (12,)`` the fractions of those ranges drawn in. With ``stand``
+    the user stands at step ``jv + 1`` too (a stop); without, the second piece keeps the first's
+    speed and each line is weighed by whether its way straight ahead at ``jv`` is blocked on
+    ``free`` (a turn at a wall). Log-likelihoods into ``ll``, points into ``px``, ``py``
+    (returned with the largest log-likelihood)."""
+    T = raster.shape[0]
+    N = offsets.shape[0]
+    bin_w = spacing / LINE_BINS
+    n_a, n_b = range_a[1] - range_a[0] + 1, range_b[1] - range_b[0] + 1
+    ll, px, py = np.empty(N), np.empty((N, T)), np.empty((N, T))
+    f = np.empty(6)
+    gap = 1 if stand else 0
+    top = -np.inf
+    for n in range(N):
+        for d in range(6):
+            f[d] = box[2 * d] + offsets[n, d] * (box[2 * d + 1] - box[2 * d])
+        sx = at[0] + (2.0 * f[0] - 1.0) * LINE_REACH * spacing
+        sy = at[1] + (2.0 * f[1] - 1.0) * LINE_REACH * spacing
+        ha = head[0] + (2.0 * f[2] - 1.0) * turn[0]
+        hb = head[1] + (2.0 * f[4] - 1.0) * turn[1]
+        ka = range_a[0] + min(int(f[3] * n_a), n_a - 1)
+        kb = range_b[0] + min(int(f[5] * n_b), n_b - 1)
+        sa = bins_a[ka] * bin_w
+        sb = bins_b[kb] * bin_w if stand else sa
+        v = lp_a[ka] + (lp_b[kb] if stand else 0.0)
+        if not stand:
+            ahead = _blocked(sx, sy, sa * np.cos(ha), sa * np.sin(ha), free, origin, res)
+            v += TURN_BLOCKED if ahead else TURN_FREE
+        for t in range(T):
+            if t <= jv:
+                x, y = sx - (jv - t) * sa * np.cos(ha), sy - (jv - t) * sa * np.sin(ha)
+            else:
+                x, y = sx + (t - jv - gap) * sb * np.cos(hb), sy + (t - jv - gap) * sb * np.sin(hb)
+            px[n, t], py[n, t] = x, y
+            v += raster_at(raster, t, x, y, ox, oy, spacing)
+        ll[n] = v
+        top = max(top, v)
+    return top, ll, px, py
+
+
+@njit(cache=True, nogil=True)
+def _family(
+    stand, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free, origin, res, mean
+):  # pragma: no cover - compiled
+    """Log evidence of the family of walks that stop (``stand``) or turn at step ``jv``, in the
+    straight lines' measure (the first heading by their density, the second by ``1 / 2 pi``);
+    its posterior mean into ``mean (T, 2)``. ``-inf`` where no walk speed lies near the first
+    piece's."""
+    T = tr.shape[0]
+    N = offsets.shape[0]
+    bin_w = spacing / LINE_BINS
+    gap = 1 if stand else 0
+    before, after = jv >= 1, jv + gap <= T - 2  # pieces of two or more steps
+    if stand:
+        at = np.array([0.5 * (tr[jv, 0] + tr[jv + 1, 0]), 0.5 * (tr[jv, 1] + tr[jv + 1, 1])])
+    else:
+        at = np.array([tr[jv, 0], tr[jv, 1]])
+    head = np.zeros(2)
+    turn = np.array([TWO_LINE_TURN, TWO_LINE_TURN])
+    bins_a, lp_a = np.ones(1, np.int64), np.zeros(1)  # a piece of one step: no speed, no heading
+    bins_b, lp_b = np.ones(1, np.int64), np.zeros(1)
+    if before:
+        vx, vy = _fit(tr, 0, jv)
+        head[0] = np.arctan2(vy, vx)
+        s0 = np.hypot(vx, vy)
+        lo = max(int(np.floor((s0 - TWO_LINE_WINDOW * spacing) / bin_w)), 0)
+        hi = min(int(np.ceil((s0 + TWO_LINE_WINDOW * spacing) / bin_w)), len(speeds) - 1)
+        bins_a, lp_a = _bins(speeds, lo, hi)
+        if not len(bins_a):
+            return -np.inf
+        if jv >= 3:
+            turn[0] = LINE_TURN
+    if after:
+        vx, vy = _fit(tr, jv + gap, T - 1)
+        head[1] = np.arctan2(vy, vx)
+        if stand:
+            bins_b, lp_b = _bins(restarts, 0, len(restarts) - 1)
+        if T - 1 - jv - gap >= 3:
+            turn[1] = LINE_TURN
+    box = np.array([0.0, 1.0] * 6)
+    range_a = np.array([0, len(bins_a) - 1])
+    range_b = np.array([0, len(bins_b) - 1])
+    lines_apart = 1.0 / N ** (1.0 / 6.0)  # of a box's side, for N quasi-random lines in six dimensions
+    log_ev = -np.inf
+    m1, m2 = np.zeros(6), np.zeros(6)
+    for stage in range(TWO_LINE_STAGES):
+        top, ll, px, py = _weigh_two_lines(
+            stand, jv, at, head, turn, box, bins_a, lp_a, range_a, bins_b, lp_b, range_b, offsets, ox,
+            oy, raster, spacing, free, origin, res,
+        )  # fmt: skip
+        total = 0.0
+        mean[:] = 0.0
+        m1[:] = 0.0
+        m2[:] = 0.0
+        for n in range(N):
+            w = np.exp(ll[n] - top)
+            total += w
+            for t in range(T):
+                mean[t, 0] += w * px[n, t]
+                mean[t, 1] += w * py[n, t]
+            for d in range(6):
+                g = box[2 * d] + offsets[n, d] * (box[2 * d + 1] - box[2 * d])
+                m1[d] += w * g
+                m2[d] += w * g * g
+        mean /= total
+        share = (box[1] - box[0]) * (box[3] - box[2])
+        log_ev = top + np.log(total / N)
+        if before:
+            share *= (box[5] - box[4]) * len(bins_a)
+            log_ev += np.log(turn[0] / LINE_TURN)
+        if after:
+            share *= (box[9] - box[8]) * len(bins_b)
+            log_ev += np.log(turn[1] / np.pi)
+        log_ev += np.log(share)
+        if stage + 1 == TWO_LINE_STAGES:
+            break
+        # the next stage's box: where the pieces meet and the headings of the pieces that have one
+        for d in range(5):
+            if d == 3 or (d == 2 and not before) or (d == 4 and not after):
+                continue
+            mu = m1[d] / total
+            sd = np.sqrt(max(m2[d] / total - mu * mu, 0.0))
+            width = max(4.0 * sd, 1.5 * lines_apart * (box[2 * d + 1] - box[2 * d]))
+            box[2 * d], box[2 * d + 1] = max(mu - width, box[2 * d]), min(mu + width, box[2 * d + 1])
+    return log_ev
+
+
+@njit(cache=True, nogil=True)
+def _two_line_kernel(
+    tracked, xy, lp, line, delta, speeds, restarts, log_stop, spacing, offsets, free, origin, res
+):  # pragma: no cover - compiled
+    B, T, K = lp.shape
+    out = line.copy()
+    mixed = delta.copy()
+    mean = np.empty((T, 2))
+    side = 2 * TWO_LINE_HALF + 1
+    raster = np.empty((T, side, side))
+    ox, oy = np.empty(T), np.empty(T)
+    ts = np.arange(T) - (T - 1) / 2.0
+    tt = (ts * ts).sum()
+    bin_w = spacing / LINE_BINS
+    stops, turns = len(restarts) > 0, free.shape[0] > 0
+    for b in range(B):
+        tr = tracked[b]
+        step = np.empty(T - 1)
+        for t in range(T - 1):
+            step[t] = np.hypot(tr[t + 1, 0] - tr[t, 0], tr[t + 1, 1] - tr[t, 1])
+        stop_at = np.zeros(T - 1, np.bool_)
+        turn_at = np.zeros(T - 1, np.bool_)
+        moving = False
+        for t in range(T - 1):
+            moving |= step[t] >= STOP_GATE * spacing
+            stop_at[t] = stops and step[t] < STOP_GATE * spacing
+            if turns and 1 <= t and step[t - 1] >= _MIN_STEP * spacing:
+                turn_at[t] = _wall_ahead(tr, t, free, origin, res, spacing)
+        if not moving or not (stop_at.any() or turn_at.any()):  # a user who never moves, or no family
+            continue
+        vx, vy = 0.0, 0.0
+        for t in range(T):
+            vx += ts[t] * tr[t, 0] / tt
+            vy += ts[t] * tr[t, 1] / tt
+        s0 = np.hypot(vx, vy)
+        # the straight lines' evidence summed over their speed bins (line_track's is per bin)
+        lo = max(int(np.floor((s0 - LINE_SPEEDS * spacing) / bin_w)), 0)
+        hi = min(int(np.ceil((s0 + LINE_SPEEDS * spacing) / bin_w)), len(speeds) - 1)
+        n_bins = max(len(_bins(speeds, lo, hi)[0]), 1)
+        best = fill_raster(xy[b], lp[b], tr, spacing, raster, ox, oy)
+        ev_line = delta[b] + best + np.log(n_bins)
+        top = ev_line
+        ev = np.full((2, T - 1), -np.inf)
+        means = np.zeros((2, T - 1, T, 2))
+        for kind in range(2):
+            for jv in range(T - 1):
+                if (stop_at if kind == 0 else turn_at)[jv]:
+                    e = _family(
+                        kind == 0,
+                        tr,
+                        jv,
+                        speeds,
+                        restarts,
+                        spacing,
+                        offsets,
+                        ox,
+                        oy,
+                        raster,
+                        free,
+                        origin,
+                        res,
+                        mean,
+                    )
+                    ev[kind, jv] = e + (log_stop if kind == 0 else 0.0)
+                    means[kind, jv] = mean
+                    top = max(top, ev[kind, jv])
+        if top == -np.inf:
+            continue
+        total = 0.0
+        acc = np.zeros((T, 2))
+        if ev_line > -np.inf:
+            w = np.exp(ev_line - top)
+            total += w
+            acc += w * line[b]
+        for kind in range(2):
+            for jv in range(T - 1):
+                if ev[kind, jv] > -np.inf:
+                    w = np.exp(ev[kind, jv] - top)
+                    total += w
+                    acc += w * means[kind, jv]
+        out[b] = acc / total
+        mixed[b] = top + np.log(total) - np.log(n_bins) - best
+    return out, mixed

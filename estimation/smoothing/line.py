@@ -53,13 +53,16 @@ LINE_TURN = 0.3
 """Radians the lines' heading may differ from the fitted line's."""
 LINE_SPEEDS = 0.6
 """Grid spacings per step: the measured speeds weighed lie this near the fitted line's."""
-LINE_SHIFT = -10.0
+LINE_SHIFT = -14.0
 """Nats of ``delta`` at which the straight-line track takes half the weight (see the module).
-With :data:`LINE_SCALE`, chosen on 2000 validation users of ``default.zarr`` (prefixes of 4 to 7
-steps, within 0.05 % of the best of shifts -18 to -8 and scales 1 to 6 at every length)."""
-LINE_SCALE = 3.0
+With :data:`LINE_SCALE`, chosen on 1000 validation users per kind of ``default.zarr`` (three
+draws, 7 steps) with the walks of two lines mixed in (:mod:`~estimation.smoothing.two_lines`),
+and checked on sequences of 5 and 15 steps (one draw): within 0.2 % of the best of -18 to -8
+nats (and scales 2 to 6) at 5 and 7 steps, 0.5 % behind -20 at 15. Before those walks, -10 and
+3 were the best for 4 to 7 steps."""
+LINE_SCALE = 4.0
 """Nats of ``delta`` per unit of the logistic: the weight goes from a quarter to three quarters
-over ``2 ln 3`` times this (6.6 nats)."""
+over ``2 ln 3`` times this (8.8 nats)."""
 _MIN_STEP = 0.5  # grid spacings per step: a slower user (a static one, or a stop) is left alone
 
 

@@ -21,7 +21,7 @@ from estimation import (
 )
 from estimation.evaluation import NetworkMethod
 from estimation.models import CandidateTransformer
-from estimation.models.candidate_transformer import KIND_TABLE, KIND_TABLE_MIN
+from estimation.models.candidate_transformer import KIND_TABLE, KIND_TABLE_MIN, NET_REACH
 from estimation.smoothing.beam import motion_arrays
 from estimation.smoothing.forecast import extrapolate, forecast_tracks
 from estimation.smoothing.hmm import (
@@ -399,6 +399,32 @@ def test_the_network_reads_its_first_k_of_the_candidates_a_filter_carries():
     out = net(xy[:, :, :6], post[:, :, :6], fine)
     assert torch.equal(net(xy, post, fine), out)
     assert torch.equal(net(xy, torch.cat([post[:, :, :6], post[:, :, 6:] * 0 + 5.0], 2), fine), out)
+
+
+def test_the_network_moves_no_step_further_than_its_reach():
+    # a network that takes each step's candidate of the highest constant-velocity posterior: at
+    # the first step that is an alias 60 m away, and there the classical estimate stands
+    torch.manual_seed(0)
+    net = CandidateTransformer(search=6, k=6, d=16, ff=32, dropout=0.0).eval()
+    with torch.no_grad():
+        net.gate.weight.zero_()
+        net.gate.bias.fill_(1.0)
+        net.offset.weight.zero_()
+        net.offset.bias.zero_()
+        net.prior.mul_(50.0)
+    T, K = 4, 6
+    xy = torch.zeros(1, T, K, 2)
+    xy[..., 0] = torch.arange(T, dtype=torch.float32)[:, None] * 1.4
+    xy[..., 1] = torch.arange(K, dtype=torch.float32) * 0.5  # candidates 0.5 m apart across the walk
+    post = torch.zeros(1, T, K, 2 + len(STEP_SIGMAS))
+    post[..., -1] = -5.0
+    post[0, :, 2, -1] = 0.0  # the network's pick: 1 m off the classical estimate at every step
+    xy[0, 0, 2] = torch.tensor([60.0, 1.0])  # but at step 0 that candidate lies 60 m away
+    fine = xy[:, :, 0].clone()
+    out = net.track(xy, post, fine)
+    assert torch.equal(out[0, 0], fine[0, 0])  # the alias is out of reach: the estimate stands
+    moved = (out - fine).norm(dim=-1)[0, 1:]
+    assert (moved > 0.9).all() and (moved <= NET_REACH * float(net.grid_step)).all()
 
 
 def test_training_drops_no_attention_weights():

@@ -56,10 +56,10 @@ LINE_SPEEDS = 0.6
 LINE_SHIFT = -14.0
 """Nats of ``delta`` at which the straight-line track takes half the weight (see the module).
 With :data:`LINE_SCALE`, chosen on 1000 validation users per kind of ``default.zarr`` (three
-draws, 7 steps) with the walks of two lines mixed in (:mod:`~estimation.smoothing.two_lines`),
-and checked on sequences of 5 and 15 steps (one draw): within 0.2 % of the best of -18 to -8
-nats (and scales 2 to 6) at 5 and 7 steps, 0.5 % behind -20 at 15. Before those walks, -10 and
-3 were the best for 4 to 7 steps."""
+draws, 7 steps; shifts -18 to -8 nats, scales 2 to 6) with the walks of two lines mixed in
+(:mod:`~estimation.smoothing.two_lines`), and checked on sequences of 5 and 15 steps (one
+draw): the best of -4 to -14 at 5 steps, 0.5 % behind -20 (the best of -46 to -10) at 15.
+Before those walks, -10 and 3 were the best for 4 to 7 steps."""
 LINE_SCALE = 4.0
 """Nats of ``delta`` per unit of the logistic: the weight goes from a quarter to three quarters
 over ``2 ln 3`` times this (8.8 nats)."""

@@ -271,8 +271,9 @@ class Estimator(nn.Module):
         users (:func:`~estimation.smoothing.line.line_track`), and with walks of two lines
         (:func:`~estimation.smoothing.two_lines.two_line_track`): a turn where the attached grid's
         free space ends ahead, and a stop where the model measured how its walkers set off after
-        one; each by how well the lines explain its steps, before they are returned (default True; only where the model measured those
-        speeds). :meth:`OnlineTracker.update`'s current positions do not.
+        one; each by how well the lines explain its steps, before they are returned (default
+        True; only where the model measured those speeds). :meth:`OnlineTracker.update`'s
+        current positions do not.
     """
 
     def __init__(self, config: TrainConfig, n_beams: int, n_bins: int, normaliser: Normaliser):

@@ -74,13 +74,23 @@ def walk_speeds(positions: np.ndarray, max_step: float) -> np.ndarray:
     Measured on trajectories ``positions (n, L >= 2, 2)`` as they are (not snapped), in grid
     spacings: the steps longer than half a spacing of users whose median step is at most
     ``max_step`` (the place tables' speed: the drivers are the route pass's)."""
-    p = checked_positions(positions)
-    step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
-    s = step[np.median(step, axis=1) <= max_step]
-    s = s[s > _MIN_STEP]
-    if not s.size:
+    s = walker_steps(positions, max_step)
+    return length_shares(s[s > _MIN_STEP])
+
+
+def walker_steps(positions: np.ndarray, max_step: float) -> np.ndarray:
+    """The step lengths ``(n_walkers, L - 1)`` of the trajectories ``positions (n, L >= 2, 2)``
+    whose median step is at most ``max_step`` (the same unit)."""
+    step = np.linalg.norm(np.diff(checked_positions(positions), axis=1), axis=-1)
+    return step[np.median(step, axis=1) <= max_step]
+
+
+def length_shares(lengths: np.ndarray) -> np.ndarray:
+    """The share of ``lengths`` (any shape) per bin of ``1 / LINE_BINS``: ``(V,)`` float64 summing
+    to 1, empty where there are none."""
+    if not lengths.size:
         return np.zeros(0)
-    counts = np.bincount(np.rint(s * LINE_BINS).astype(np.int64))
+    counts = np.bincount(np.rint(lengths.ravel() * LINE_BINS).astype(np.int64))
     return counts / counts.sum()
 
 
@@ -139,6 +149,62 @@ def line_track(
         np.asarray(speeds, np.float64), float(spacing), _OFFSETS, LINE_REACH, LINE_TURN, LINE_SPEEDS,
         LINE_STAGES, LINE_SPREAD,
     )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def fit_line(tr, a, b):  # pragma: no cover - compiled
+    """The least-squares line through the points ``tr[a..b]`` ``(T, 2)``: their mean ``(cx, cy)``
+    (the line's point at their middle step) and its velocity per step ``(vx, vy)``."""
+    n = b - a + 1
+    mid = (a + b) / 2.0
+    tt = 0.0
+    for t in range(a, b + 1):
+        tt += (t - mid) ** 2
+    cx, cy, vx, vy = 0.0, 0.0, 0.0, 0.0
+    for t in range(a, b + 1):
+        cx += tr[t, 0] / n
+        cy += tr[t, 1] / n
+        vx += (t - mid) * tr[t, 0] / tt
+        vy += (t - mid) * tr[t, 1] / tt
+    return cx, cy, vx, vy
+
+
+@njit(cache=True, nogil=True)
+def prior_bins(prior, lo, hi):  # pragma: no cover - compiled
+    """The bins ``lo..hi`` of ``prior`` that hold any share, and their log shares."""
+    n = 0
+    for j in range(lo, hi + 1):
+        if prior[j] > 0.0:
+            n += 1
+    bins, log_prior = np.empty(n, np.int64), np.empty(n)
+    k = 0
+    for j in range(lo, hi + 1):
+        if prior[j] > 0.0:
+            bins[k], log_prior[k] = j, np.log(prior[j])
+            k += 1
+    return bins, log_prior
+
+
+@njit(cache=True, nogil=True)
+def speed_bins(speeds, s0, window, spacing):  # pragma: no cover - compiled
+    """:func:`prior_bins` of the measured ``speeds`` within ``window`` spacings of ``s0`` metres
+    per step."""
+    bin_w = spacing / LINE_BINS
+    lo = max(int(np.floor((s0 - window * spacing) / bin_w)), 0)
+    hi = min(int(np.ceil((s0 + window * spacing) / bin_w)), len(speeds) - 1)
+    return prior_bins(speeds, lo, hi)
+
+
+@njit(cache=True, nogil=True)
+def narrow_box(box, d, m1, m2, total, spread, apart):  # pragma: no cover - compiled
+    """Narrow coordinate ``d`` of a stage's ``box`` (fractions, lowest and highest per coordinate)
+    to ``spread`` standard deviations either side of the posterior's mean (from its weighted
+    moments ``m1``, ``m2`` and weight ``total``), at least 1.5 times ``apart``, the stage's
+    spacing of lines as a share of the box's side."""
+    mu = m1 / total
+    sd = np.sqrt(max(m2 / total - mu * mu, 0.0))
+    width = max(spread * sd, 1.5 * apart * (box[2 * d + 1] - box[2 * d]))
+    box[2 * d], box[2 * d + 1] = max(mu - width, box[2 * d]), min(mu + width, box[2 * d + 1])
 
 
 @njit(cache=True, nogil=True)
@@ -235,41 +301,23 @@ def _line_kernel(
     delta = np.full(B, -np.inf)
     mid = (T - 1) / 2.0
     ts = np.arange(T) - mid
-    tt = (ts * ts).sum()
     bin_w = spacing / LINE_BINS
-    V = len(speeds)
     ll = np.empty(N)
     px = np.empty((N, T))
     py = np.empty((N, T))
     spacing_of_lines = 1.0 / N**0.25  # of a box's side, for N quasi-random lines in four dimensions
     for b in range(B):
         # least-squares line through the track: centre at the middle step, velocity per step
-        cx, cy, vx, vy = 0.0, 0.0, 0.0, 0.0
-        for t in range(T):
-            cx += tracked[b, t, 0] / T
-            cy += tracked[b, t, 1] / T
-            vx += ts[t] * tracked[b, t, 0] / tt
-            vy += ts[t] * tracked[b, t, 1] / tt
+        cx, cy, vx, vy = fit_line(tracked[b], 0, T - 1)
         s0 = np.hypot(vx, vy)
         if s0 < _MIN_STEP * spacing:
             continue
         h0 = np.arctan2(vy, vx)
-        # the measured speed bins near the fitted line's
-        lo = max(int(np.floor((s0 - window * spacing) / bin_w)), 0)
-        hi = min(int(np.ceil((s0 + window * spacing) / bin_w)), V - 1)
-        n_bins = 0
-        for j in range(lo, hi + 1):
-            if speeds[j] > 0.0:
-                n_bins += 1
+        # the measured speed bins near the fitted line's, each read by every line at its speed
+        bins, log_prior = speed_bins(speeds, s0, window, spacing)
+        n_bins = len(bins)
         if n_bins == 0:
             continue
-        bins = np.empty(n_bins, np.int64)
-        log_prior = np.empty(n_bins)  # each bin's log share, read by every line at its speed
-        k = 0
-        for j in range(lo, hi + 1):
-            if speeds[j] > 0.0:
-                bins[k], log_prior[k] = j, np.log(speeds[j])
-                k += 1
         # each step's candidates on a raster around the fitted line's point (its lowest elsewhere),
         # as far out as a line's point at the first or last step can lie from the fitted line's
         far = reach * spacing + abs(ts[0]) * (window * spacing + (s0 + window * spacing) * turn)
@@ -289,37 +337,37 @@ def _line_kernel(
                 raster, spacing, bin_w, ll, px, py,
             )  # fmt: skip
             n_kb = kb_hi - kb_lo + 1
-            share = (box[1] - box[0]) * (box[3] - box[2]) * (box[5] - box[4]) * n_kb / n_bins
+            last = stage + 1 == stages
             total = 0.0
-            mx = np.zeros(T)
+            mx = np.zeros(T)  # the last stage's posterior mean
             my = np.zeros(T)
-            m1 = np.zeros(3)  # the posterior's moments of the box's three continuous coordinates
+            m1 = np.zeros(3)  # an earlier stage's moments of the box's three continuous coordinates
             m2 = np.zeros(3)
             kb_mass = np.zeros(n_kb)
             for n in range(N):
                 w = np.exp(ll[n] - top_ll)
                 total += w
-                for t in range(T):
-                    mx[t] += w * px[n, t]
-                    my[t] += w * py[n, t]
+                if last:
+                    for t in range(T):
+                        mx[t] += w * px[n, t]
+                        my[t] += w * py[n, t]
+                    continue
                 for d in range(3):
                     f = box[2 * d] + offsets[n, d] * (box[2 * d + 1] - box[2 * d])
                     m1[d] += w * f
                     m2[d] += w * f * f
                 kb_mass[min(int(offsets[n, 3] * n_kb), n_kb - 1)] += w
-            for t in range(T):
-                out[b, t, 0] = mx[t] / total
-                out[b, t, 1] = my[t] / total
-            delta[b] = top_ll + np.log(total / N * share) - best
-            if stage + 1 == stages:
+            if last:
+                for t in range(T):
+                    out[b, t, 0] = mx[t] / total
+                    out[b, t, 1] = my[t] / total
+                share = (box[1] - box[0]) * (box[3] - box[2]) * (box[5] - box[4]) * n_kb / n_bins
+                delta[b] = top_ll + np.log(total / N * share) - best
                 break
             # the next stage's box: the posterior's spread either side of its mean, and the speed
             # bins that hold any of its mass with one more either side
             for d in range(3):
-                mu = m1[d] / total
-                sd = np.sqrt(max(m2[d] / total - mu * mu, 0.0))
-                width = max(spread * sd, 1.5 * spacing_of_lines * (box[2 * d + 1] - box[2 * d]))
-                box[2 * d], box[2 * d + 1] = max(mu - width, box[2 * d]), min(mu + width, box[2 * d + 1])
+                narrow_box(box, d, m1[d], m2[d], total, spread, spacing_of_lines)
             first, last = n_kb, -1
             for q in range(n_kb):
                 if kb_mass[q] > 1e-4 * total:

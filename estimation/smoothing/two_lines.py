@@ -33,17 +33,23 @@ from numba import njit
 
 from mmwsim._threads import batch_map
 
-from ._positions import checked_positions
 from .line import (
     _MIN_STEP,
     LINE_BINS,
     LINE_LINES,
     LINE_REACH,
     LINE_SPEEDS,
+    LINE_SPREAD,
     LINE_TURN,
     _offsets,
     fill_raster,
+    fit_line,
+    length_shares,
+    narrow_box,
+    prior_bins,
     raster_at,
+    speed_bins,
+    walker_steps,
 )
 
 __all__ = [
@@ -119,15 +125,12 @@ def walk_restarts(positions: np.ndarray, max_step: float) -> tuple[np.ndarray, f
     stop_share : float
         The share of the moving steps followed by a stop (0 where there is none).
     """
-    p = checked_positions(positions)
-    step = np.linalg.norm(np.diff(p, axis=1), axis=-1)
-    s = step[np.median(step, axis=1) <= max_step]
+    s = walker_steps(positions, max_step)
     moving = s[:, :-1] > _MIN_STEP
     after = s[:, 1:][(s[:, :-1] <= _MIN_STEP) & (s[:, 1:] > _MIN_STEP)]
     if not after.size or not moving.any():
         return np.zeros(0), 0.0
-    counts = np.bincount(np.rint(after * LINE_BINS).astype(np.int64))
-    return counts / counts.sum(), float((moving & (s[:, 1:] <= _MIN_STEP)).sum() / moving.sum())
+    return length_shares(after), float((moving & (s[:, 1:] <= _MIN_STEP)).sum() / moving.sum())
 
 
 def two_line_track(
@@ -186,35 +189,6 @@ def two_line_track(
 
 
 @njit(cache=True, nogil=True)
-def _fit(tr, a, b):  # pragma: no cover - compiled
-    """Least-squares velocity per step ``(vx, vy)`` through the track's steps ``a..b``."""
-    mid = (a + b) / 2.0
-    tt, vx, vy = 0.0, 0.0, 0.0
-    for t in range(a, b + 1):
-        tt += (t - mid) ** 2
-    for t in range(a, b + 1):
-        vx += (t - mid) * tr[t, 0] / tt
-        vy += (t - mid) * tr[t, 1] / tt
-    return vx, vy
-
-
-@njit(cache=True, nogil=True)
-def _bins(prior, lo, hi):  # pragma: no cover - compiled
-    """The bins ``lo..hi`` of ``prior`` that hold any share, and their log shares."""
-    n = 0
-    for j in range(lo, hi + 1):
-        if prior[j] > 0.0:
-            n += 1
-    bins, log_prior = np.empty(n, np.int64), np.empty(n)
-    k = 0
-    for j in range(lo, hi + 1):
-        if prior[j] > 0.0:
-            bins[k], log_prior[k] = j, np.log(prior[j])
-            k += 1
-    return bins, log_prior
-
-
-@njit(cache=True, nogil=True)
 def _blocked(x, y, hx, hy, free, origin, res):  # pragma: no cover - compiled
     """Whether the step from ``(x, y)`` by ``(hx, hy)`` metres meets a blocked grid point at a
     quarter, a half, three quarters or all of its length (off the raster counts as free)."""
@@ -262,6 +236,9 @@ def _weigh_two_lines(
     free,
     origin,
     res,
+    ll,
+    px,
+    py,
 ):  # pragma: no cover - compiled
     """One stage of a family of walks of two lines that meet at step ``jv``: within
     :data:`LINE_REACH` of ``at (2,)``, the two pieces' headings within ``turn (2,)`` of
@@ -269,13 +246,12 @@ def _weigh_two_lines(
     ``bins_a``, ``bins_b``; ``box (12,)`` the fractions of those ranges drawn in. With ``stand``
     the user stands at step ``jv + 1`` too (a stop); without, the second piece keeps the first's
     speed and each line is weighed by whether its way straight ahead at ``jv`` is blocked on
-    ``free`` (a turn at a wall). Log-likelihoods into ``ll``, points into ``px``, ``py``
-    (returned with the largest log-likelihood)."""
+    ``free`` (a turn at a wall). Log-likelihoods into ``ll``, points into ``px``, ``py``;
+    returns the largest."""
     T = raster.shape[0]
     N = offsets.shape[0]
     bin_w = spacing / LINE_BINS
     n_a, n_b = range_a[1] - range_a[0] + 1, range_b[1] - range_b[0] + 1
-    ll, px, py = np.empty(N), np.empty((N, T)), np.empty((N, T))
     f = np.empty(6)
     gap = 1 if stand else 0
     top = -np.inf
@@ -303,20 +279,21 @@ def _weigh_two_lines(
             v += raster_at(raster, t, x, y, ox, oy, spacing)
         ll[n] = v
         top = max(top, v)
-    return top, ll, px, py
+    return top
 
 
 @njit(cache=True, nogil=True)
 def _family(
-    stand, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free, origin, res, mean
+    stand, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free, origin, res, buffers, mean
 ):  # pragma: no cover - compiled
     """Log evidence of the family of walks that stop (``stand``) or turn at step ``jv``, in the
     straight lines' measure (the first heading by their density, the second by ``1 / 2 pi``);
-    its posterior mean into ``mean (T, 2)``. ``-inf`` where no walk speed lies near the first
+    its posterior mean into ``mean (T, 2)``, the lines of a stage into ``buffers`` (``ll (N,)``,
+    ``px``, ``py (N, T)``). ``-inf`` where no walk speed lies near the first
     piece's."""
     T = tr.shape[0]
     N = offsets.shape[0]
-    bin_w = spacing / LINE_BINS
+    ll, px, py = buffers
     gap = 1 if stand else 0
     before, after = jv >= 1, jv + gap <= T - 2  # pieces of two or more steps
     if stand:
@@ -328,21 +305,18 @@ def _family(
     bins_a, lp_a = np.ones(1, np.int64), np.zeros(1)  # a piece of one step: no speed, no heading
     bins_b, lp_b = np.ones(1, np.int64), np.zeros(1)
     if before:
-        vx, vy = _fit(tr, 0, jv)
+        vx, vy = fit_line(tr, 0, jv)[2:]
         head[0] = np.arctan2(vy, vx)
-        s0 = np.hypot(vx, vy)
-        lo = max(int(np.floor((s0 - TWO_LINE_WINDOW * spacing) / bin_w)), 0)
-        hi = min(int(np.ceil((s0 + TWO_LINE_WINDOW * spacing) / bin_w)), len(speeds) - 1)
-        bins_a, lp_a = _bins(speeds, lo, hi)
+        bins_a, lp_a = speed_bins(speeds, np.hypot(vx, vy), TWO_LINE_WINDOW, spacing)
         if not len(bins_a):
             return -np.inf
         if jv >= 3:
             turn[0] = LINE_TURN
     if after:
-        vx, vy = _fit(tr, jv + gap, T - 1)
+        vx, vy = fit_line(tr, jv + gap, T - 1)[2:]
         head[1] = np.arctan2(vy, vx)
         if stand:
-            bins_b, lp_b = _bins(restarts, 0, len(restarts) - 1)
+            bins_b, lp_b = prior_bins(restarts, 0, len(restarts) - 1)
         if T - 1 - jv - gap >= 3:
             turn[1] = LINE_TURN
     box = np.array([0.0, 1.0] * 6)
@@ -352,20 +326,23 @@ def _family(
     log_ev = -np.inf
     m1, m2 = np.zeros(6), np.zeros(6)
     for stage in range(TWO_LINE_STAGES):
-        top, ll, px, py = _weigh_two_lines(
+        top = _weigh_two_lines(
             stand, jv, at, head, turn, box, bins_a, lp_a, range_a, bins_b, lp_b, range_b, offsets, ox,
-            oy, raster, spacing, free, origin, res,
+            oy, raster, spacing, free, origin, res, ll, px, py,
         )  # fmt: skip
+        last = stage + 1 == TWO_LINE_STAGES
         total = 0.0
-        mean[:] = 0.0
-        m1[:] = 0.0
+        mean[:] = 0.0  # the last stage's posterior mean
+        m1[:] = 0.0  # an earlier stage's moments of the box's coordinates
         m2[:] = 0.0
         for n in range(N):
             w = np.exp(ll[n] - top)
             total += w
-            for t in range(T):
-                mean[t, 0] += w * px[n, t]
-                mean[t, 1] += w * py[n, t]
+            if last:
+                for t in range(T):
+                    mean[t, 0] += w * px[n, t]
+                    mean[t, 1] += w * py[n, t]
+                continue
             for d in range(6):
                 g = box[2 * d] + offsets[n, d] * (box[2 * d + 1] - box[2 * d])
                 m1[d] += w * g
@@ -380,16 +357,13 @@ def _family(
             share *= (box[9] - box[8]) * len(bins_b)
             log_ev += np.log(turn[1] / np.pi)
         log_ev += np.log(share)
-        if stage + 1 == TWO_LINE_STAGES:
+        if last:
             break
         # the next stage's box: where the pieces meet and the headings of the pieces that have one
         for d in range(5):
             if d == 3 or (d == 2 and not before) or (d == 4 and not after):
                 continue
-            mu = m1[d] / total
-            sd = np.sqrt(max(m2[d] / total - mu * mu, 0.0))
-            width = max(4.0 * sd, 1.5 * lines_apart * (box[2 * d + 1] - box[2 * d]))
-            box[2 * d], box[2 * d + 1] = max(mu - width, box[2 * d]), min(mu + width, box[2 * d + 1])
+            narrow_box(box, d, m1[d], m2[d], total, LINE_SPREAD, lines_apart)
     return log_ev
 
 
@@ -397,16 +371,15 @@ def _family(
 def _two_line_kernel(
     tracked, xy, lp, line, delta, speeds, restarts, log_stop, spacing, offsets, free, origin, res
 ):  # pragma: no cover - compiled
-    B, T, K = lp.shape
+    B, T = lp.shape[:2]
+    N = offsets.shape[0]
     out = line.copy()
     mixed = delta.copy()
     mean = np.empty((T, 2))
+    buffers = np.empty(N), np.empty((N, T)), np.empty((N, T))
     side = 2 * TWO_LINE_HALF + 1
     raster = np.empty((T, side, side))
     ox, oy = np.empty(T), np.empty(T)
-    ts = np.arange(T) - (T - 1) / 2.0
-    tt = (ts * ts).sum()
-    bin_w = spacing / LINE_BINS
     stops, turns = len(restarts) > 0, free.shape[0] > 0
     for b in range(B):
         tr = tracked[b]
@@ -423,15 +396,9 @@ def _two_line_kernel(
                 turn_at[t] = _wall_ahead(tr, t, free, origin, res, spacing)
         if not moving or not (stop_at.any() or turn_at.any()):  # a user who never moves, or no family
             continue
-        vx, vy = 0.0, 0.0
-        for t in range(T):
-            vx += ts[t] * tr[t, 0] / tt
-            vy += ts[t] * tr[t, 1] / tt
-        s0 = np.hypot(vx, vy)
         # the straight lines' evidence summed over their speed bins (line_track's is per bin)
-        lo = max(int(np.floor((s0 - LINE_SPEEDS * spacing) / bin_w)), 0)
-        hi = min(int(np.ceil((s0 + LINE_SPEEDS * spacing) / bin_w)), len(speeds) - 1)
-        n_bins = max(len(_bins(speeds, lo, hi)[0]), 1)
+        vx, vy = fit_line(tr, 0, T - 1)[2:]
+        n_bins = max(len(speed_bins(speeds, np.hypot(vx, vy), LINE_SPEEDS, spacing)[0]), 1)
         best = fill_raster(xy[b], lp[b], tr, spacing, raster, ox, oy)
         ev_line = delta[b] + best + np.log(n_bins)
         top = ev_line
@@ -441,21 +408,9 @@ def _two_line_kernel(
             for jv in range(T - 1):
                 if (stop_at if kind == 0 else turn_at)[jv]:
                     e = _family(
-                        kind == 0,
-                        tr,
-                        jv,
-                        speeds,
-                        restarts,
-                        spacing,
-                        offsets,
-                        ox,
-                        oy,
-                        raster,
-                        free,
-                        origin,
-                        res,
-                        mean,
-                    )
+                        kind == 0, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free,
+                        origin, res, buffers, mean,
+                    )  # fmt: skip
                     ev[kind, jv] = e + (log_stop if kind == 0 else 0.0)
                     means[kind, jv] = mean
                     top = max(top, ev[kind, jv])

@@ -222,6 +222,70 @@ def test_a_driver_lost_at_an_end_step_is_put_back_where_its_speed_and_fingerprin
     assert np.linalg.norm(first[0, end] - true[0, end]) > 2.0
 
 
+# A T of streets: east along y = 0 from (-60, 0) to (120, 0), and north from (60, 0) to (60, 60).
+T_STREETS = np.array([[[-60.0, 0.0], [60.0, 0.0]], [[60.0, 0.0], [120.0, 0.0]], [[60.0, 0.0], [60.0, 60.0]]])
+
+
+@pytest.mark.parametrize("end", [0, -1])
+def test_a_driver_turning_at_a_junction_in_an_end_step_is_found_on_the_street_it_took(end, monkeypatch):
+    """A driver east along y = 0 turns north at the junction in its last step (or, reversed, comes
+    from the north street in its first). The smoother carried the end step straight on, onto an
+    alias 2 m past the junction, and the route built from that track runs on along y = 0: only
+    the branch at the junction holds the true cell."""
+    net = StreetNetwork.from_segments(T_STREETS)
+    s = 12.2 + 8.3 * np.arange(7)  # the last step ends 2 m up the north street
+    true = np.where((s <= 60.0)[:, None], np.stack([s, 0 * s], -1), np.stack([0 * s + 60.0, s - 60.0], -1))[
+        None
+    ]
+    if end == 0:
+        true = true[:, ::-1].copy()
+    xy, lp, cells = grid_candidates(true)
+    alias = np.array([62.0, 0.0])  # straight on through the junction
+    xy[0, end, 0], lp[0, end, 0] = alias, -3.0
+    tracked = cells.copy()
+    tracked[0, end] = alias
+    track, on = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert on.all() and np.linalg.norm(track - true, axis=-1).max() < 0.5
+    monkeypatch.setattr(route, "ROUTE_BRANCHES", False)
+    straight, _ = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert np.linalg.norm(straight[0, end] - true[0, end]) > 2.0
+
+
+def test_a_junction_branches_by_each_other_street_at_the_end_step_that_passes_it():
+    # a crossing at (60, 0): the route east along y = 0 may leave it north or south in its last
+    # step; a junction the track passed earlier, or one farther than the reach, gives none
+    streets = np.concatenate([T_STREETS, [[[60.0, 0.0], [60.0, -60.0]]]])
+    net = StreetNetwork.from_segments(streets)
+    node = {tuple(p): i for i, p in enumerate(net.nodes.tolist())}
+    nodes = [node[(-60.0, 0.0)], node[(60.0, 0.0)], node[(120.0, 0.0)]]
+    arc = route.ROUTE_EXTEND + 73.2 + 8.3 * np.arange(7)  # the last step ends 3 m past the crossing
+    branches = route._end_branches(net, nodes, arc, 6.0)
+    assert sorted(b[-1] for b in branches) == sorted([node[(60.0, 60.0)], node[(60.0, -60.0)]])
+    assert all(b[:2] == nodes[:2] for b in branches)
+    assert route._end_branches(net, nodes, arc - 10.0, 6.0) == []  # the crossing 7 m past the last step
+    assert route._end_branches(net, nodes, arc + 10.0, 6.0) == []  # passed in the step before
+
+
+def test_a_driver_whose_end_step_lies_far_off_the_streets_is_routed_by_its_other_steps():
+    """A first (or last) tracked step farther than ROUTE_REACH from every street left the whole
+    driver unsmoothed; its route is now the other steps', and the stray step is put back."""
+    net = StreetNetwork.from_segments(L_STREETS)
+    true = _drive(np.array([20.0]), 8.3)
+    xy, lp, cells = grid_candidates(true)
+    for end in (0, -1):
+        tracked = cells.copy()
+        tracked[0, end, 1 + end] += 6.0  # 6 m off the street it is on
+        assert street_routes(net, tracked)[0] is not None
+        track, on = route_track(tracked, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+        assert on.all() and np.linalg.norm(track - true, axis=-1).max() < 0.5
+    both = cells.copy()
+    both[0, [0, -1], 1] += 6.0  # both ends off: the other five still make the route
+    assert route_track(both, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)[1].all()
+    mid = cells.copy()
+    mid[0, 3, 1] += 6.0  # a step between off the streets: no route
+    assert street_routes(net, mid) == [None]
+
+
 def test_the_wider_end_windows_leave_drivers_tracked_right_as_they_were(monkeypatch):
     starts = np.linspace(20.0, 30.0, 17)
     true = _drive(starts, 8.3)

@@ -644,7 +644,6 @@ class Estimator(nn.Module):
         track, on = route_track(
             tracked.double().numpy(), np.asarray(xy, np.float64), np.asarray(lp, np.float64), net,
             fine.route_speeds.numpy(), float(fine.route_change), step, float(fine.place_speed) * step,
-            fine.route_restarts.numpy(), float(fine.route_restart),
         )  # fmt: skip
         out = tracked.clone()
         out[torch.from_numpy(on)] = torch.from_numpy(track[on]).to(out.dtype)

@@ -85,35 +85,31 @@ def test_drivers_at_speeds_of_their_own_are_followed(step):
     assert np.linalg.norm(track - true, axis=-1).mean() < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
 
 
-@pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6]), (4, 5, [0, 2, 1])])
-@pytest.mark.parametrize("stops", [False, True])
-def test_the_pass_is_the_exact_posterior_over_arc_and_speed(S, V, d, stops):
+@pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6])])
+def test_the_pass_is_the_exact_posterior_over_arc_and_speed(S, V, d):
     # every path of an S-bin window, V speeds and len(d) + 1 steps enumerated: a path advances by
-    # its speed, which it keeps or draws again (after standing still, speed 0: sets off again
-    # from the restart speeds, or stays); the pass's posterior and evidence are the sums. With
-    # windows that shift little (or much) against the speeds, some speeds can keep a user within
-    # the windows at no step: the pass sums those in closed form.
+    # its speed, which it keeps or draws again; the pass's posterior and evidence are the sums.
+    # With windows that shift little (or much) against the speeds, some speeds can keep a user
+    # within the windows at no step: the pass sums those in closed form.
     rng = np.random.default_rng(3)
     T, change = len(d) + 1, 0.3
     lik, prior, d = rng.random((1, T, S)), rng.dirichlet(np.ones(V)), np.array([d])
-    restarts, restart = (rng.dirichlet(np.ones(V)), 0.8) if stops else (prior, change)
     post = np.zeros((T, S))
     for i0 in range(S):
         for js in itertools.product(range(V), repeat=T):
             p, i = prior[js[0]] * lik[0, 0, i0], [i0]
             for t in range(T - 1):
                 i.append(i[-1] + js[t] - d[0, t])
-                c, draw = (restart, restarts) if js[t] == 0 else (change, prior)
-                keep = (1 - c) * (js[t + 1] == js[t]) + c * draw[js[t + 1]]
+                keep = (1 - change) * (js[t + 1] == js[t]) + change * prior[js[t + 1]]
                 p *= keep * lik[0, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
             if p > 0:  # a path that leaves the window is none
                 post[np.arange(T), i] += p
-    got, alive, evidence = route._forward_backward(lik, d, prior, change, restarts, restart)
+    got, alive, evidence = route._forward_backward(lik, d, prior, change)
     assert alive[0]
     np.testing.assert_allclose(got[0], post / post.sum(1, keepdims=True), rtol=1e-12)
     np.testing.assert_allclose(np.exp(evidence[0]), post[0].sum(), rtol=1e-12)
     # a window the track cannot reach from the last: no way through
-    assert not route._forward_backward(lik, np.full((1, T - 1), -9), prior, change, restarts, restart)[1][0]
+    assert not route._forward_backward(lik, np.full((1, T - 1), -9), prior, change)[1][0]
 
 
 @pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6]), (4, 6, [2])])
@@ -145,33 +141,10 @@ def test_the_pass_of_speeds_of_their_own_is_the_exact_posterior(S, V, d):
     # every change a draw: the measured speeds' pass
     for a, b in zip(
         route._forward_backward_changes(lik, d, prior, change, deltas, prob, 1.0),
-        route._forward_backward(lik, d, prior, change, prior, change),
+        route._forward_backward(lik, d, prior, change),
         strict=True,
     ):
         np.testing.assert_allclose(a, b, rtol=1e-12)
-
-
-def test_a_driver_that_stops_for_a_step_sets_off_at_the_measured_restart_speeds(monkeypatch):
-    # the training drivers kept 5.3 or 8.3 m per step; the few stops (2 % of the steps) were
-    # followed by a step of 8.3 m. A driver at 5.3 m who stops for a step and sets off at 8.3 is
-    # read better knowing how drivers set off than with a stop and a start as two changes of
-    # speed, each as likely as any (fingerprints that tell little leave it to motion)
-    s = 10.0 + np.r_[0.0, np.cumsum([5.3, 5.3, 0.0, 8.3, 8.3, 8.3])]
-    true = _along_l(s[None] + np.linspace(0.0, 1.0, 9)[:, None])
-    xy, _, cells = grid_candidates(true)
-    lp = -0.5 * ((xy - true[..., None, :]) ** 2).sum(-1)
-    net = StreetNetwork.from_segments(L_STREETS)
-    speeds = 0.49 * _speeds(5.3, 170) + 0.49 * _speeds(8.3, 170) + 0.02 * _speeds(0.0, 170)
-    restarts = _speeds(8.3, 170)
-
-    def error() -> float:
-        track, on = route_track(cells, xy, lp, net, speeds, 0.1, 1.0, 3.0, restarts, 1.0)
-        assert on.all()
-        return float(np.linalg.norm(track - true, axis=-1).mean())
-
-    restarted = error()
-    monkeypatch.setattr(route, "ROUTE_RESTARTS", False)
-    assert restarted < 0.8 * error()
 
 
 def test_speed_changes_are_the_differences_between_measured_speeds():
@@ -467,15 +440,6 @@ def test_drive_speeds_are_measured_on_the_drivers_along_their_streets():
     assert float(table.route_change) == pytest.approx(1 / 7)
     stop = MotionTable().fit_drives(np.stack([np.r_[0, 8, 8, 16, 24.0], np.zeros(5)], -1)[None], 5.0)
     assert float(stop.route_change) == pytest.approx(2 / 3)  # stopping and going on are changes
-    # after standing still: one step, 8 m long
-    assert float(stop.route_restart) == 1.0 and np.flatnonzero(stop.route_restarts).tolist() == [
-        8 * ROUTE_BINS
-    ]
-    stays = np.stack([np.r_[0, 8, 16, 16, 16, 24.0], np.zeros(6)], -1)[
-        None
-    ]  # still for two steps: half go on
-    assert float(MotionTable().fit_drives(stays, 5.0).route_restart) == pytest.approx(1 / 2)
-    assert not len(table.route_restarts) and float(table.route_restart) == 0.0  # no still step
     assert not len(MotionTable().fit_drives(walker, 5.0).route_speeds)
     with pytest.raises(ValueError):
         MotionTable().fit_drives(np.full((1, 3, 2), np.nan), 5.0)

@@ -251,11 +251,6 @@ class MotionTable(nn.Module):
         # smoothing).
         self.register_buffer("route_speeds", torch.zeros(0, dtype=torch.float64))
         self.register_buffer("route_change", torch.tensor(0.0, dtype=torch.float64))
-        # How they set off after standing still for a step (fit_drives): the share of those steps
-        # per length (the same bins), and the share of still steps a moving one follows; none
-        # until measured (a stop is a speed like any other).
-        self.register_buffer("route_restarts", torch.zeros(0, dtype=torch.float64))
-        self.register_buffer("route_restart", torch.tensor(0.0, dtype=torch.float64))
         # How fast the other moving users walk (fit_walks), for the straight-line pass: the share
         # of their steps per length, in bins of 1 / LINE_BINS of the table's unit; none until
         # measured (no such pass).
@@ -274,7 +269,7 @@ class MotionTable(nn.Module):
         # place tables existed has none (no place preference).
         for name in (
             "place_speed", "log_place", "place_origin", "place_res", "restart_step", "route_speeds", "route_change",
-            "route_restarts", "route_restart", "walk_speeds", "walk_restarts", "walk_stop",
+            "walk_speeds", "walk_restarts", "walk_stop",
         ):  # fmt: skip
             key = prefix + name
             if key in state_dict:
@@ -327,9 +322,7 @@ class MotionTable(nn.Module):
         the share of their steps per length in bins of ``1 / ROUTE_BINS`` of the table's unit,
         and ``route_change``, the share of their consecutive steps whose lengths differ by more
         than a bin (what :func:`~estimation.smoothing.route.route_track` drives them by). Both
-        are cleared where there is no such user. After a step standing still:
-        ``route_restarts``, the share of the next steps per length (the same bins), and
-        ``route_restart``, the share of those that move (empty and zero without a still step).
+        are cleared where there is no such user.
 
         Both are measured along the streets, where that smoother moves its drivers: a step that
         turns a corner is its chord, shorter than the way driven, so the speeds are those of the
@@ -343,19 +336,11 @@ class MotionTable(nn.Module):
         drivers = np.median(step, axis=1) > speed
         move, step = move[drivers], step[drivers]
         drives = np.rint(step * ROUTE_BINS).astype(np.int64)
-        self.route_restarts = torch.zeros(0, dtype=torch.float64)
-        self.route_restart = torch.tensor(0.0, dtype=torch.float64)
         if not drives.size:
             self.route_speeds = torch.zeros(0, dtype=torch.float64)
             self.route_change = torch.tensor(0.0, dtype=torch.float64)
             return self
         moving = step > _STILL
-        after = ~moving[:, :-1]  # the steps that follow a still one
-        if after.any():
-            on = after & moving[:, 1:]
-            self.route_restart = torch.tensor(float(on.sum() / after.sum()), dtype=torch.float64)
-            if on.any():
-                self.route_restarts = torch.from_numpy(np.bincount(drives[:, 1:][on]) / on.sum())
         both = moving[:, 1:] & moving[:, :-1]
         heading = np.arctan2(move[..., 1], move[..., 0])
         turn = np.abs(np.angle(np.exp(1j * np.diff(heading, axis=1))))

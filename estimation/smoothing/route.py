@@ -125,12 +125,6 @@ misses the street the driver is on. On `pt67`'s network (`default.zarr`, 6 dB, 7
 1000 vehicles of each split, three draws; with end steps off the streets routed by the others,
 :func:`_street_nodes`): seen area -4.2 to -6.6 %, held out -0.9 to -2.9 %, validation -1.7 to
 -2.4 %. The route pass then takes 3.0 s per 1000 vehicles instead of 1.7 s."""
-ROUTE_RESTARTS = True
-"""Whether a driver that stood still for a step sets off again at the measured restart speeds
-(``MotionTable.route_restarts``) with the measured probability (``route_restart``), instead of
-keeping its speed of zero or changing it as any speed changes. Our drivers stop for one step and
-set off at their mean speed; read as two changes of speed (each ``change`` times its speed's
-share), a stop and its start cost about 3 nats more than the generator makes them."""
 _CHUNK = 64  # users per pass (chunk x steps x window positions and likelihoods)
 _BACK = 10.0  # cost per metre a track's arc length runs back (beyond the slack), in metres of distance
 _BACK_SLACK = 0.2  # typical steps an arc length may run back unpunished (a stopped user's jitter)
@@ -441,14 +435,11 @@ def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: 
 
 @numba.njit(cache=True, nogil=True)
 def _forward_backward(
-    lik: np.ndarray, d: np.ndarray, prior: np.ndarray, change: float, restarts: np.ndarray, restart: float
+    lik: np.ndarray, d: np.ndarray, prior: np.ndarray, change: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Posterior over the window's arc bins ``(n, T, S)`` of users at arc bin ``centre_t + i`` (the
     window ``i`` in ``0..S-1``) moving ``j`` bins per step (``prior (V,)``, kept with probability
-    ``1 - change``; a user that stood still, ``j = 0``, sets off again with probability
-    ``restart`` at a speed drawn from ``restarts (V,)`` instead, as drivers start after a stop at
-    speeds of their own; ``restarts = prior`` and ``restart = change`` make a stop a speed like
-    any other); ``lik (n, T, S)`` the steps' likelihoods, ``d (n, T-1)`` the windows' shifts.
+    ``1 - change``); ``lik (n, T, S)`` the steps' likelihoods, ``d (n, T-1)`` the windows' shifts.
     Also ``(n,)`` whether any way through the windows is possible at all (not where the track
     runs back along its route farther than a window) and ``(n,)`` the log-likelihood of the steps
     under this motion (up to a constant of the window's size).
@@ -465,65 +456,50 @@ def _forward_backward(
     post = np.zeros((n, T, S))
     alive = np.ones(n, dtype=np.bool_)
     evidence = np.zeros(n)
-    # alpha_t(speed jlo + w, bin i) = redrawn[t, i] prior[jlo + w] + restarted[t, i] restarts[jlo + w]
-    # + kept[t, w, i] (restarted: the users that stood still in the step to t). A user keeping
+    # alpha_t(speed jlo + w, bin i) = redrawn[t, i] prior[jlo + w] + kept[t, w, i]. A user keeping
     # speed jlo + w from step t - 1 to t moves by shift = jlo + w - d[t - 1] bins: kept[t, w] is
     # kept[t - 1, w] shifted (a contiguous row, as beta's rows are a step back), defined only at
     # the bins a user arrives at from within the window before (its "reach", never read outside)
     redrawn = np.empty((T, S))
-    restarted = np.empty((T, S))
     kept = np.empty((T, V, S))
     beta = np.empty((V, S))
     arrived = np.empty(S)
-    still = np.empty(S)
     again = np.empty(S)
-    again_still = np.empty(S)
-    p_all, r_all = prior.sum(), restarts.sum()
+    p_all = prior.sum()
     for u in range(n):
         lo_d, hi_d = d[u, 0], d[u, 0]
         for t in range(1, T - 1):
             lo_d, hi_d = min(lo_d, d[u, t]), max(hi_d, d[u, t])
         jlo, jhi = max(0, lo_d - (S - 1)), min(V - 1, hi_d + (S - 1))
         W = max(jhi - jlo + 1, 0)
+        p_in = 0.0
+        for w in range(W):
+            p_in += prior[jlo + w]
         tot = 0.0
         for i in range(S):
             redrawn[0, i] = lik[u, 0, i]  # the first step's speed is drawn from the prior
-            restarted[0, i] = 0.0
             tot += lik[u, 0, i] * p_all
         for t in range(T):
             if t > 0:
                 arrived[:] = 0.0
-                still[:] = 0.0
                 for w in range(W):
                     shift = jlo + w - d[u, t - 1]
                     before = jlo + w - d[u, t - 2] if t > 1 else 0  # row w's reach at t - 1
-                    c = restart if jlo + w == 0 else change
                     for i in range(max(0, shift), min(S - 1, shift + S - 1) + 1):
-                        a = (
-                            redrawn[t - 1, i - shift] * prior[jlo + w]
-                            + restarted[t - 1, i - shift] * restarts[jlo + w]
-                        )
+                        a = redrawn[t - 1, i - shift] * prior[jlo + w]
                         if t > 1 and 0 <= i - shift - before < S:
                             a += kept[t - 1, w, i - shift]
-                        if jlo + w == 0:
-                            still[i] += a
-                        else:
-                            arrived[i] += a
-                        kept[t, w, i] = (1.0 - c) * a * lik[u, t, i]
+                        arrived[i] += a
+                        kept[t, w, i] = (1.0 - change) * a * lik[u, t, i]
                 tot = 0.0
                 for i in range(S):
                     redrawn[t, i] = change * arrived[i] * lik[u, t, i]
-                    restarted[t, i] = restart * still[i] * lik[u, t, i]
-                    tot += (
-                        (1.0 - change + change * p_all) * arrived[i]
-                        + (1.0 - restart + restart * r_all) * still[i]
-                    ) * lik[u, t, i]
+                    tot += (1.0 - change + change * p_all) * arrived[i] * lik[u, t, i]
             if tot <= 0.0:
                 alive[u] = False
                 break
             evidence[u] += np.log(tot)
             redrawn[t] /= tot
-            restarted[t] /= tot
             if t > 0:
                 for w in range(W):
                     shift = jlo + w - d[u, t - 1]
@@ -535,24 +511,19 @@ def _forward_backward(
             if t < T - 1:
                 # beta_t(w, i) = lik_t+1(i + shift) ((1 - c) beta_t+1(w, i + shift) + again(i + shift)),
                 # defined where i + shift lies in the window; beta_T-1 is 1 everywhere
-                if t == T - 2:  # the last step's speed moves nothing: every speed counts
-                    again[:] = change * p_all
-                    again_still[:] = restart * r_all
+                if t == T - 2:
+                    again[:] = change * p_in
                 else:
                     again[:] = 0.0
-                    again_still[:] = 0.0
                     for w in range(W):
                         later = jlo + w - d[u, t + 1]
                         for k in range(max(0, -later), min(S - 1, S - 1 - later) + 1):
                             again[k] += prior[jlo + w] * beta[w, k]
-                            again_still[k] += restarts[jlo + w] * beta[w, k]
                     again[:] *= change
-                    again_still[:] *= restart
                 top = 0.0
                 for w in range(W):
                     shift = jlo + w - d[u, t]
                     later = jlo + w - d[u, t + 1] if t < T - 2 else 0
-                    c, ahead = (restart, again_still) if jlo + w == 0 else (change, again)
                     i0, i1 = max(0, -shift), min(S - 1, S - 1 - shift)
                     for m in range(i1 - i0 + 1):
                         # in place: each bin read (i + shift) before it is written
@@ -561,7 +532,7 @@ def _forward_backward(
                         b = 1.0
                         if t < T - 2:  # zero where the speed leaves the window a step later still
                             b = beta[w, k] if 0 <= k + later < S else 0.0
-                        beta[w, i] = lik[u, t + 1, k] * ((1.0 - c) * b + ahead[k])
+                        beta[w, i] = lik[u, t + 1, k] * ((1.0 - change) * b + again[k])
                         top = max(top, beta[w, i])
                 top = max(top, 1e-300)
                 for w in range(W):
@@ -570,7 +541,7 @@ def _forward_backward(
                         beta[w, i] /= top
             if t == T - 1:  # beta is 1 at every speed
                 for i in range(S):
-                    post[u, t, i] = redrawn[t, i] * p_all + restarted[t, i] * r_all
+                    post[u, t, i] = redrawn[t, i] * p_in
                 for w in range(W):
                     reach = jlo + w - d[u, t - 1]
                     for i in range(max(0, reach), min(S - 1, reach + S - 1) + 1):
@@ -580,7 +551,7 @@ def _forward_backward(
                     shift = jlo + w - d[u, t]
                     reach = jlo + w - d[u, t - 1] if t > 0 else 0
                     for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
-                        a = redrawn[t, i] * prior[jlo + w] + restarted[t, i] * restarts[jlo + w]
+                        a = redrawn[t, i] * prior[jlo + w]
                         if t > 0 and 0 <= i - reach < S:
                             a += kept[t, w, i]
                         post[u, t, i] += a * beta[w, i]
@@ -870,8 +841,6 @@ def route_track(
     change: float,
     spacing: float,
     min_speed: float,
-    restarts: np.ndarray | None = None,
-    restart: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Tracks of drivers smoothed along their street routes (see the module's text).
 
@@ -893,11 +862,6 @@ def route_track(
         The grid's spacing, metres.
     min_speed : float
         Metres per step: users whose median tracked step is slower are left as they are.
-    restarts : (V',) float, optional
-        Probabilities of moving ``j`` arc bins in the step after one standing still, as
-        measured on the same users (:data:`ROUTE_RESTARTS`); with ``restart``, the probability
-        that a user who stood still moves on in its next step. Without them a stop is a speed
-        like any other, kept with probability ``1 - change``.
 
     Returns
     -------
@@ -918,13 +882,8 @@ def route_track(
     deltas, prob = speed_changes(prior)
     redraw = ROUTE_REDRAW if len(deltas) else 1.0  # no measured change: every change a draw
     prior = (1 - ROUTE_FLOOR) * prior + ROUTE_FLOOR * flat
-    stop = (prior, change)  # a stop a speed like any other
-    if ROUTE_RESTARTS and restarts is not None and len(restarts) and restart is not None:
-        r = np.zeros(len(prior))
-        r[: min(len(r), len(restarts))] = np.asarray(restarts, dtype=np.float64)[: len(r)]
-        stop = ((1 - ROUTE_FLOOR) * r / r.sum() + ROUTE_FLOOR * flat, float(restart))
     passes = (  # (kernel, its motion arguments, prior share): measured speeds, speeds of its own
-        (_forward_backward, (prior, change, *stop), 1 - ROUTE_OTHER),
+        (_forward_backward, (prior, change), 1 - ROUTE_OTHER),
         (_forward_backward_changes, (flat, change, deltas, prob, redraw), ROUTE_OTHER),
     )
     steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)

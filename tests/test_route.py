@@ -251,9 +251,9 @@ def test_a_driver_turning_at_a_junction_in_an_end_step_is_found_on_the_street_it
     assert np.linalg.norm(straight[0, end] - true[0, end]) > 2.0
 
 
-def test_a_junction_branches_by_each_other_street_at_the_end_step_that_passes_it():
+def test_a_junction_branches_by_each_other_street_at_the_end_steps_that_pass_it():
     # a crossing at (60, 0): the route east along y = 0 may leave it north or south in its last
-    # step; a junction the track passed earlier, or one farther than the reach, gives none
+    # two steps; a junction the track passed earlier, or one farther than the reach, gives none
     streets = np.concatenate([T_STREETS, [[[60.0, 0.0], [60.0, -60.0]]]])
     net = StreetNetwork.from_segments(streets)
     node = {tuple(p): i for i, p in enumerate(net.nodes.tolist())}
@@ -263,7 +263,26 @@ def test_a_junction_branches_by_each_other_street_at_the_end_step_that_passes_it
     assert sorted(b[-1] for b in branches) == sorted([node[(60.0, 60.0)], node[(60.0, -60.0)]])
     assert all(b[:2] == nodes[:2] for b in branches)
     assert route._end_branches(net, nodes, arc - 10.0, 6.0) == []  # the crossing 7 m past the last step
-    assert route._end_branches(net, nodes, arc + 10.0, 6.0) == []  # passed in the step before
+    assert len(route._end_branches(net, nodes, arc + 10.0, 6.0)) == 2  # passed in the step before
+    assert route._end_branches(net, nodes, arc + 20.0, 6.0) == []  # passed two steps before
+
+
+def test_a_dead_end_street_touched_at_its_junction_is_no_turn():
+    # a dead end 40 m south of the junction at (60, 0): a track that passes the junction with one
+    # position 1.5 m into that street did not drive down it and back; one that came within
+    # ROUTE_EXTEND of the dead end did (the network's drivers turn at a dead end)
+    streets = np.array([[[0.0, 0.0], [60.0, 0.0]], [[60.0, 0.0], [120.0, 0.0]], [[60.0, 0.0], [60.0, -40.0]]])
+    net = StreetNetwork.from_segments(streets)
+    x = 20.0 + 8.0 * np.arange(7)
+    past = np.stack([x, np.zeros(7)], -1)
+    past[5] = [60.6, -1.5]  # nearer the dead-end street than the one it drives
+    (route_past,) = street_routes(net, past[None])
+    assert route_past is not None and route_past[:, 1].min() > -1.0  # along y = 0 only
+    down = np.array(
+        [[20.0, 0.0], [35.0, 0.0], [50.0, 0.0], [60.0, -5.0], [60.0, -22.0], [60.0, -10.0], [65.0, 0.0]]
+    )
+    (route_down,) = street_routes(net, down[None])
+    assert route_down is not None and route_down[:, 1].min() == pytest.approx(-40.0)
 
 
 def test_a_driver_whose_end_step_lies_far_off_the_streets_is_routed_by_its_other_steps():

@@ -118,13 +118,13 @@ ROUTE_LANES = np.linspace(-0.8, 0.8, 9)
 which its track is weighed (each by how well it explains the steps)."""
 ROUTE_BRANCHES = True
 """Whether a driver's route is also weighed leaving by each other street at a junction that its
-first or its last step may pass (:func:`_end_branches`), each such route weighed as its own line.
+first or its last two steps may pass (:func:`_end_branches`), each such route weighed as its own line.
 The smoother's track of a driver who turned at a junction in its last step (or had turned into its
 street in its first) often runs on straight through it, and the route built from that track then
 misses the street the driver is on. On `pt67`'s network (`default.zarr`, 6 dB, 7 steps, the first
 1000 vehicles of each split, three draws; with end steps off the streets routed by the others,
-:func:`_street_nodes`): seen area -4.2 to -6.6 %, held out -0.9 to -2.9 %, validation -1.7 to
--2.4 %. The route pass then takes 3.0 s per 1000 vehicles instead of 1.7 s."""
+:func:`_street_nodes`): seen area -4.3 to -6.4 %, held out -0.9 to -2.9 %, validation -1.7 to
+-2.8 %. The route pass then takes 3.3 to 4.4 s per 1000 vehicles instead of 1.6 to 2.2 s."""
 _CHUNK = 64  # users per pass (chunk x steps x window positions and likelihoods)
 _BACK = 10.0  # cost per metre a track's arc length runs back (beyond the slack), in metres of distance
 _BACK_SLACK = 0.2  # typical steps an arc length may run back unpunished (a stopped user's jitter)
@@ -164,7 +164,10 @@ def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[
         nodes += way[::-1] + [q]
     i = 0
     while i + 2 < len(nodes):  # a street touched at a junction is no detour: x, y, x -> x
-        if nodes[i] == nodes[i + 2] and net.degree[nodes[i + 1]] != 1:
+        # nor is a dead end the track never came near: a driver turns at one only where it came
+        # within ROUTE_EXTEND of it, as at the route's ends
+        far = np.linalg.norm(track - net.nodes[nodes[i + 1]], axis=1).min() >= ROUTE_EXTEND
+        if nodes[i] == nodes[i + 2] and (net.degree[nodes[i + 1]] != 1 or far):
             del nodes[i + 1 : i + 3]
             i = max(i - 1, 0)
         else:
@@ -251,15 +254,15 @@ def _vertices(net: StreetNetwork, nodes: list[int]) -> np.ndarray:
 
 def _end_branches(net: StreetNetwork, nodes: list[int], arc: np.ndarray, reach: float) -> list[list[int]]:
     """Routes that leave the route ``nodes`` by another street at a junction that the track's
-    first or last step may pass (:data:`ROUTE_BRANCHES`).
+    first or last two steps may pass (:data:`ROUTE_BRANCHES`).
 
     ``arc (T,)`` are the track's arc lengths along :func:`_vertices` of ``nodes``; a junction
-    counts for the last step where its arc length lies after the second last step's and at most
-    ``reach`` metres past the last step's (for the first step alike, mirrored). Each such
+    counts for the last steps where its arc length lies after the third last step's and at most
+    ``reach`` metres past the last step's (for the first steps alike, mirrored). Each such
     junction gives one route per street that leaves it other than the route's own two: the route
     up to the junction and on along that street (or that street and on from the junction), as
     the network's drivers take any onward street at a junction with equal probability."""
-    if len(arc) < 2:
+    if len(arc) < 3:
         return []
     P = net.nodes[nodes]
     at = np.concatenate(
@@ -267,8 +270,8 @@ def _end_branches(net: StreetNetwork, nodes: list[int], arc: np.ndarray, reach: 
     )
     out = []
     for j, node in enumerate(nodes):
-        late = arc[-2] < at[j] <= arc[-1] + reach
-        early = arc[0] - reach <= at[j] < arc[1]
+        late = arc[-3] < at[j] <= arc[-1] + reach
+        early = arc[0] - reach <= at[j] < arc[2]
         if not (late or early):
             continue
         own = {nodes[k] for k in (j - 1, j + 1) if 0 <= k < len(nodes)}

@@ -166,8 +166,10 @@ def _route_nodes(net: StreetNetwork, seq: list[int], track: np.ndarray) -> list[
     while i + 2 < len(nodes):  # a street touched at a junction is no detour: x, y, x -> x
         # nor is a dead end the track never came near: a driver turns at one only where it came
         # within ROUTE_EXTEND of it, as at the route's ends
-        far = np.linalg.norm(track - net.nodes[nodes[i + 1]], axis=1).min() >= ROUTE_EXTEND
-        if nodes[i] == nodes[i + 2] and (net.degree[nodes[i + 1]] != 1 or far):
+        if nodes[i] == nodes[i + 2] and (
+            net.degree[nodes[i + 1]] != 1
+            or np.linalg.norm(track - net.nodes[nodes[i + 1]], axis=1).min() >= ROUTE_EXTEND
+        ):
             del nodes[i + 1 : i + 3]
             i = max(i - 1, 0)
         else:
@@ -213,26 +215,28 @@ def street_routes(
     :data:`ROUTE_DETOUR`, or the route would pass a node twice other than at a dead end (a U-turn
     on a street).
     """
-    return [None if n is None else _vertices(net, n) for n in _street_nodes(net, tracks, reach)]
+    return [None if n is None else _vertices(net, n) for n in _street_nodes(net, tracks, reach)[0]]
 
 
 def _street_nodes(
     net: StreetNetwork, tracks: np.ndarray, reach: float = ROUTE_REACH
-) -> list[list[int] | None]:
-    """The nodes of each track's route (see :func:`street_routes`), or None.
+) -> tuple[list[list[int] | None], np.ndarray]:
+    """The nodes of each track's route (see :func:`street_routes`), or None; and ``(B, 2)``
+    whether its first and last step were left out of it.
 
     A track whose first or last position alone lies farther than ``reach`` from every street
     (the smoother lost that end step: one side's evidence only) gets the route of its other
     positions, along which the route pass weighs the lost step too. On the draws of
-    :data:`ROUTE_BRANCHES`, seen area -0.8, 0 and -3.0 %, held out 0 %, validation 0, 0 and
-    -1.9 %."""
+    :data:`ROUTE_BRANCHES`, with no branches, seen area -0.8, 0 and -3.0 %, held out 0 %,
+    validation 0, 0 and -1.9 %."""
     tracks = np.asarray(tracks, dtype=np.float64)
     edge, dist = net.nearest_edges(tracks)
     T = tracks.shape[1]
+    lost = dist[:, [0, -1]] > reach if T > 3 else np.zeros((len(tracks), 2), dtype=bool)
     out: list[list[int] | None] = []
     # One route per user: a few graph steps each, from the edges the vectorised search found.
     for b in range(len(tracks)):
-        lo, hi = int(T > 3 and dist[b, 0] > reach), T - int(T > 3 and dist[b, -1] > reach)
+        lo, hi = int(lost[b, 0]), T - int(lost[b, 1])
         if not dist[b, lo:hi].max() <= reach:
             out.append(None)
             continue
@@ -240,7 +244,7 @@ def _street_nodes(
         seq = [int(e[0])] + [int(x) for x, y in zip(e[1:], e[:-1], strict=True) if x != y]
         nodes = _route_nodes(net, seq, tracks[b, lo:hi])
         out.append(None if nodes is None else _turn_at_dead_ends(net, nodes, tracks[b, lo:hi]))
-    return out
+    return out, lost
 
 
 def _vertices(net: StreetNetwork, nodes: list[int]) -> np.ndarray:
@@ -822,8 +826,8 @@ def _relocate_ends(
     if end <= half or T < 3 or not lines:
         return take
     # which drivers to weigh again is read on their own routes: the branches' windows at the end
-    # steps reach into other streets, where some position is always likelier (three times the
-    # drivers, for the same tracks)
+    # steps reach into other streets, where some position is always likelier (read on them too,
+    # it took three times the drivers, for tracks within 0.8 %)
     near = _end_gaps([line for line in lines if not line[3]], xy, lp, spacing, half, end, B) > -ROUTE_END_GAP
     lines = [line for line in lines if near[line[0]]]
     if not lines:
@@ -892,7 +896,7 @@ def route_track(
     steps = np.linalg.norm(np.diff(tracked, axis=1), axis=-1)
     typical = np.median(steps, axis=1)
     fast = np.flatnonzero(typical > min_speed)
-    routes = _street_nodes(net, tracked[fast])
+    routes, lost = _street_nodes(net, tracked[fast])
     lines = []  # (user, a line it may drive along, its track's arc lengths there, whether a branch)
     centred = np.zeros(B, dtype=bool)
     for b, nodes in zip(fast, routes, strict=True):
@@ -918,10 +922,8 @@ def route_track(
     take = _relocate_ends(track, ok, centre_lines, xy, lp, passes, spacing, half)
     away = np.linalg.norm(track - tracked, axis=-1)
     away[take, 0] = away[take, -1] = 0.0  # a relocated end step is meant to move
-    if len(fast) and T > 3:  # an end step off the streets, routed by the others, is meant to move
-        far = net.nearest_edges(tracked[fast])[1][:, [0, -1]] > ROUTE_REACH
-        away[fast[far[:, 0]], 0] = 0.0
-        away[fast[far[:, 1]], -1] = 0.0
+    # and so is an end step off the streets, left out of the route
+    away[fast[lost[:, 0]], 0] = away[fast[lost[:, 1]], -1] = 0.0
     keep = ok & (away.max(1) <= ROUTE_GATE)
     out[keep], on[keep] = track[keep], True
     return out, on

@@ -85,48 +85,81 @@ def test_drivers_at_speeds_of_their_own_are_followed(step):
     assert np.linalg.norm(track - true, axis=-1).mean() < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
 
 
-@pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6])])
-def test_the_pass_is_the_exact_posterior_over_arc_and_speed(S, V, d):
+def _banded(lik: np.ndarray, band: tuple | None) -> np.ndarray:
+    """``lik (1, T, S)`` zero outside bins ``band`` at the steps between the first and the last,
+    as the wider end windows of ``_relocate_ends`` are, after another user's unbanded ``(1, T,
+    S)``: the pass reuses its buffers from user to user, and the second must not read what the
+    first left where its band leaves them unwritten."""
+    if band is not None:
+        inside = np.zeros(lik.shape[-1], dtype=bool)
+        inside[slice(*band)] = True
+        lik[:, 1:-1, ~inside] = 0.0
+    return np.concatenate([np.random.default_rng(9).random(lik.shape), lik])
+
+
+@pytest.mark.parametrize(
+    "S, V, d, band",
+    [
+        (5, 3, [1, 0], None),
+        (3, 8, [1, 3, 1], None),
+        (4, 9, [7, 6], None),
+        (7, 5, [2, 1, 3], (2, 5)),
+        (6, 8, [4, 0], (1, 3)),
+    ],
+)
+def test_the_pass_is_the_exact_posterior_over_arc_and_speed(S, V, d, band):
     # every path of an S-bin window, V speeds and len(d) + 1 steps enumerated: a path advances by
     # its speed, which it keeps or draws again; the pass's posterior and evidence are the sums.
     # With windows that shift little (or much) against the speeds, some speeds can keep a user
-    # within the windows at no step: the pass sums those in closed form.
+    # within the windows at no step: the pass sums those in closed form. With a band, the steps
+    # between the ends are zero outside it: the pass visits the band only, and must still sum
+    # every path through it.
     rng = np.random.default_rng(3)
     T, change = len(d) + 1, 0.3
-    lik, prior, d = rng.random((1, T, S)), rng.dirichlet(np.ones(V)), np.array([d])
+    lik, prior, d = _banded(rng.random((1, T, S)), band), rng.dirichlet(np.ones(V)), np.array([d, d])
     post = np.zeros((T, S))
     for i0 in range(S):
         for js in itertools.product(range(V), repeat=T):
-            p, i = prior[js[0]] * lik[0, 0, i0], [i0]
+            p, i = prior[js[0]] * lik[1, 0, i0], [i0]
             for t in range(T - 1):
-                i.append(i[-1] + js[t] - d[0, t])
+                i.append(i[-1] + js[t] - d[1, t])
                 keep = (1 - change) * (js[t + 1] == js[t]) + change * prior[js[t + 1]]
-                p *= keep * lik[0, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
+                p *= keep * lik[1, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
             if p > 0:  # a path that leaves the window is none
                 post[np.arange(T), i] += p
     got, alive, evidence = route._forward_backward(lik, d, prior, change)
-    assert alive[0]
-    np.testing.assert_allclose(got[0], post / post.sum(1, keepdims=True), rtol=1e-12)
-    np.testing.assert_allclose(np.exp(evidence[0]), post[0].sum(), rtol=1e-12)
+    assert alive.all()
+    np.testing.assert_allclose(got[1], post / post.sum(1, keepdims=True), rtol=1e-12)
+    np.testing.assert_allclose(np.exp(evidence[1]), post[0].sum(), rtol=1e-12)
     # a window the track cannot reach from the last: no way through
-    assert not route._forward_backward(lik, np.full((1, T - 1), -9), prior, change)[1][0]
+    assert not route._forward_backward(lik, np.full((2, T - 1), -9), prior, change)[1][1]
 
 
-@pytest.mark.parametrize("S, V, d", [(5, 3, [1, 0]), (3, 8, [1, 3, 1]), (4, 9, [7, 6]), (4, 6, [2])])
-def test_the_pass_of_speeds_of_their_own_is_the_exact_posterior(S, V, d):
+@pytest.mark.parametrize(
+    "S, V, d, band",
+    [
+        (5, 3, [1, 0], None),
+        (3, 8, [1, 3, 1], None),
+        (4, 9, [7, 6], None),
+        (4, 6, [2], None),
+        (7, 5, [2, 1, 3], (2, 5)),
+        (6, 8, [4, 0], (1, 3)),
+    ],
+)
+def test_the_pass_of_speeds_of_their_own_is_the_exact_posterior(S, V, d, band):
     # every path enumerated: its first speed drawn from the prior, then at each step kept, or
     # changed by one of the differences, or drawn again; a path that leaves the window is none
     rng = np.random.default_rng(3)
     T, change, redraw = len(d) + 1, 0.3, 0.4
-    lik, prior, d = rng.random((1, T, S)), rng.dirichlet(np.ones(V)), np.array([d])
+    lik, prior, d = _banded(rng.random((1, T, S)), band), rng.dirichlet(np.ones(V)), np.array([d, d])
     deltas, prob = np.array([-2, 1, 3]), np.array([0.5, 0.3, 0.2])
     post = np.zeros((T, S))
     for i0 in range(S):
         for js in itertools.product(range(V), repeat=T - 1):  # the speed of each move
-            p, i = prior[js[0]] * lik[0, 0, i0], [i0]
+            p, i = prior[js[0]] * lik[1, 0, i0], [i0]
             for t in range(T - 1):
-                i.append(i[-1] + js[t] - d[0, t])
-                p *= lik[0, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
+                i.append(i[-1] + js[t] - d[1, t])
+                p *= lik[1, t + 1, i[-1]] if 0 <= i[-1] < S else 0.0
                 if t < T - 2:
                     moved = sum(q for k, q in zip(deltas, prob, strict=True) if js[t + 1] == js[t] + k)
                     p *= (1 - change) * (js[t + 1] == js[t]) + change * (
@@ -135,9 +168,9 @@ def test_the_pass_of_speeds_of_their_own_is_the_exact_posterior(S, V, d):
             if p > 0:
                 post[np.arange(T), i] += p
     got, alive, evidence = route._forward_backward_changes(lik, d, prior, change, deltas, prob, redraw)
-    assert alive[0]
-    np.testing.assert_allclose(got[0], post / post.sum(1, keepdims=True), rtol=1e-12)
-    np.testing.assert_allclose(np.exp(evidence[0]), post[0].sum(), rtol=1e-12)
+    assert alive.all()
+    np.testing.assert_allclose(got[1], post / post.sum(1, keepdims=True), rtol=1e-12)
+    np.testing.assert_allclose(np.exp(evidence[1]), post[0].sum(), rtol=1e-12)
     # every change a draw: the measured speeds' pass
     for a, b in zip(
         route._forward_backward_changes(lik, d, prior, change, deltas, prob, 1.0),

@@ -415,28 +415,52 @@ def _candidate_loglik(xy: np.ndarray, lp: np.ndarray, pos: np.ndarray, spacing: 
     lowest candidate's (the candidates are a step's most likely points). A position halfway
     between grid points (a street between two rows of receivers) gets the likelier of them: which
     one a user there reads is the grid's rounding, not the street's."""
-    n, T = lp.shape[:2]
     ref = xy.reshape(-1, 2)[0]  # any candidate is one of the grid's points
-    cand_ij = np.rint((xy - ref) / spacing).astype(np.int64)
+    cand = np.rint((xy - ref) / spacing).astype(np.int64)
     u = (pos - ref) / spacing
-    near = [np.floor(u + 0.5 - _TIE_BAND).astype(np.int64), np.floor(u + 0.5 + _TIE_BAND).astype(np.int64)]
-    lo = np.minimum(cand_ij.reshape(-1, 2).min(0), near[0].reshape(-1, 2).min(0))
-    span = int(max(cand_ij.max(), near[1].max()) - lo.min()) + 1
+    near = np.stack([np.floor(u + 0.5 - _TIE_BAND), np.floor(u + 0.5 + _TIE_BAND)]).astype(np.int64)
+    return _lookup(cand, np.asarray(lp, np.float64), near)
 
-    def key(i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        return (i - lo[0]) * span + (j - lo[1])
 
-    step = np.arange(n * T, dtype=np.int64).reshape(n, T)
-    cand = (step[..., None] * span * span + key(cand_ij[..., 0], cand_ij[..., 1])).ravel()
-    order = np.argsort(cand, kind="stable")
-    sorted_keys, sorted_lp = cand[order], lp.reshape(-1)[order]
-    floor = lp.min(-1)[..., None]
-    best = np.full(pos.shape[:-1], -np.inf)
-    for a in near:  # the two rows (the same one unless halfway) ...
-        for b in near:  # ... by the two columns
-            want = step[..., None] * span * span + key(a[..., 0], b[..., 1])
-            j = np.clip(np.searchsorted(sorted_keys, want), 0, len(sorted_keys) - 1)
-            best = np.maximum(best, np.where(sorted_keys[j] == want, sorted_lp[j], floor))
+@numba.njit(cache=True, nogil=True)
+def _lookup(cand: np.ndarray, lp: np.ndarray, near: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`_candidate_loglik`'s search, per step: the candidates' grid indices ``cand (n, T,
+    K, 2)`` sorted once (stably: of a point listed twice, the first), then each of the grid
+    points ``near (2, n, T, S, 2)`` (the rows and columns either side of a halfway position)
+    found by bisection. Compiled: numpy's sort and search over the whole block cost a fifth of
+    the route pass."""
+    n, T, K = lp.shape
+    S = near.shape[3]
+    best = np.empty((n, T, S))
+    keys = np.empty(K, dtype=np.int64)
+    for u in range(n):
+        for t in range(T):
+            lo_i, lo_j = cand[u, t, 0, 0], cand[u, t, 0, 1]
+            hi_j = lo_j
+            floor = lp[u, t, 0]
+            for k in range(K):
+                lo_i, lo_j = min(lo_i, cand[u, t, k, 0]), min(lo_j, cand[u, t, k, 1])
+                hi_j = max(hi_j, cand[u, t, k, 1])
+                floor = min(floor, lp[u, t, k])
+            span = hi_j - lo_j + 1
+            for k in range(K):
+                keys[k] = (cand[u, t, k, 0] - lo_i) * span + (cand[u, t, k, 1] - lo_j)
+            order = np.argsort(keys, kind="mergesort")
+            sorted_keys = keys[order]
+            for s in range(S):
+                top = -np.inf
+                for a in range(2):  # the two rows (the same one unless halfway) ...
+                    i = near[a, u, t, s, 0]
+                    for b in range(2):  # ... by the two columns
+                        j = near[b, u, t, s, 1]
+                        v = floor
+                        if 0 <= j - lo_j < span:  # a column no candidate has is no candidate
+                            want = (i - lo_i) * span + (j - lo_j)
+                            m = np.searchsorted(sorted_keys, want)
+                            if m < K and sorted_keys[m] == want:
+                                v = lp[u, t, order[m]]
+                        top = max(top, v)
+                best[u, t, s] = top
     return best
 
 
@@ -473,12 +497,24 @@ def _forward_backward(
     arrived = np.empty(S)
     again = np.empty(S)
     p_all = prior.sum()
+    lo_b = np.empty(T + 1, dtype=np.int64)  # each step's bins with a likelihood (its band)
+    hi_b = np.empty(T + 1, dtype=np.int64)
     for u in range(n):
         lo_d, hi_d = d[u, 0], d[u, 0]
         for t in range(1, T - 1):
             lo_d, hi_d = min(lo_d, d[u, t]), max(hi_d, d[u, t])
         jlo, jhi = max(0, lo_d - (S - 1)), min(V - 1, hi_d + (S - 1))
         W = max(jhi - jlo + 1, 0)
+        # A window wider at the end steps than between them (_relocate_ends) is zero outside
+        # the narrow one there: every loop below visits its band only, and what it leaves out
+        # would be zero (the rows it reads later are zeroed outside what it writes).
+        lo_b[T], hi_b[T] = 0, S - 1  # past the last step: everything
+        for t in range(T):
+            lo_b[t], hi_b[t] = S, -1
+            for i in range(S):
+                if lik[u, t, i] > 0.0:
+                    lo_b[t] = min(lo_b[t], i)
+                    hi_b[t] = i
         p_in = 0.0
         for w in range(W):
             p_in += prior[jlo + w]
@@ -492,7 +528,14 @@ def _forward_backward(
                 for w in range(W):
                     shift = jlo + w - d[u, t - 1]
                     before = jlo + w - d[u, t - 2] if t > 1 else 0  # row w's reach at t - 1
-                    for i in range(max(0, shift), min(S - 1, shift + S - 1) + 1):
+                    r0, r1 = max(0, shift), min(S - 1, shift + S - 1)
+                    i0 = max(r0, lo_b[t], shift + lo_b[t - 1])
+                    i1 = min(r1, hi_b[t], shift + hi_b[t - 1])
+                    for i in range(r0, min(i0, r1 + 1)):
+                        kept[t, w, i] = 0.0
+                    for i in range(max(i1 + 1, r0), r1 + 1):
+                        kept[t, w, i] = 0.0
+                    for i in range(i0, i1 + 1):
                         a = redrawn[t - 1, i - shift] * prior[jlo + w]
                         if t > 1 and 0 <= i - shift - before < S:
                             a += kept[t - 1, w, i - shift]
@@ -506,12 +549,15 @@ def _forward_backward(
                 alive[u] = False
                 break
             evidence[u] += np.log(tot)
-            redrawn[t] /= tot
+            inv = 1.0 / tot  # a product per bin, not a division
+            redrawn[t] *= inv
             if t > 0:
                 for w in range(W):
                     shift = jlo + w - d[u, t - 1]
-                    for i in range(max(0, shift), min(S - 1, shift + S - 1) + 1):
-                        kept[t, w, i] /= tot
+                    i0 = max(0, shift, lo_b[t], shift + lo_b[t - 1])
+                    i1 = min(S - 1, shift + S - 1, hi_b[t], shift + hi_b[t - 1])
+                    for i in range(i0, i1 + 1):
+                        kept[t, w, i] *= inv
         if not alive[u]:
             continue
         for t in range(T - 1, -1, -1):
@@ -524,14 +570,17 @@ def _forward_backward(
                     again[:] = 0.0
                     for w in range(W):
                         later = jlo + w - d[u, t + 1]
-                        for k in range(max(0, -later), min(S - 1, S - 1 - later) + 1):
+                        k0 = max(0, -later, lo_b[t + 1], lo_b[t + 2] - later)
+                        k1 = min(S - 1, S - 1 - later, hi_b[t + 1], hi_b[t + 2] - later)
+                        for k in range(k0, k1 + 1):
                             again[k] += prior[jlo + w] * beta[w, k]
                     again[:] *= change
                 top = 0.0
                 for w in range(W):
                     shift = jlo + w - d[u, t]
                     later = jlo + w - d[u, t + 1] if t < T - 2 else 0
-                    i0, i1 = max(0, -shift), min(S - 1, S - 1 - shift)
+                    r0, r1 = max(0, -shift), min(S - 1, S - 1 - shift)
+                    i0, i1 = max(r0, lo_b[t + 1] - shift), min(r1, hi_b[t + 1] - shift)
                     for m in range(i1 - i0 + 1):
                         # in place: each bin read (i + shift) before it is written
                         i = i0 + m if shift >= 0 else i1 - m
@@ -541,11 +590,18 @@ def _forward_backward(
                             b = beta[w, k] if 0 <= k + later < S else 0.0
                         beta[w, i] = lik[u, t + 1, k] * ((1.0 - change) * b + again[k])
                         top = max(top, beta[w, i])
-                top = max(top, 1e-300)
+                    for i in range(r0, min(i0, r1 + 1)):  # outside the next step's band, after it is read
+                        beta[w, i] = 0.0
+                    for i in range(max(i1 + 1, r0), r1 + 1):
+                        beta[w, i] = 0.0
+                inv = 1.0 / max(top, 1e-300)
                 for w in range(W):
                     shift = jlo + w - d[u, t]
-                    for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
-                        beta[w, i] /= top
+                    for i in range(
+                        max(0, -shift, lo_b[t + 1] - shift),
+                        min(S - 1, S - 1 - shift, hi_b[t + 1] - shift) + 1,
+                    ):
+                        beta[w, i] *= inv
             if t == T - 1:  # beta is 1 at every speed
                 for i in range(S):
                     post[u, t, i] = redrawn[t, i] * p_in
@@ -557,7 +613,9 @@ def _forward_backward(
                 for w in range(W):
                     shift = jlo + w - d[u, t]
                     reach = jlo + w - d[u, t - 1] if t > 0 else 0
-                    for i in range(max(0, -shift), min(S - 1, S - 1 - shift) + 1):
+                    i0 = max(0, -shift, lo_b[t], lo_b[t + 1] - shift)
+                    i1 = min(S - 1, S - 1 - shift, hi_b[t], hi_b[t + 1] - shift)
+                    for i in range(i0, i1 + 1):
                         a = redrawn[t, i] * prior[jlo + w]
                         if t > 0 and 0 <= i - reach < S:
                             a += kept[t, w, i]
@@ -633,9 +691,17 @@ def _forward_backward_changes(
     beta_all = np.empty((max(ws.max(), 1), S))
     ahead_all = np.empty((max(ws.max(), 1), S))
     redrawn = np.empty(S)
+    lo_b = np.empty(T, dtype=np.int64)  # each step's band, as in _forward_backward
+    hi_b = np.empty(T, dtype=np.int64)
     for u in range(n):
         jlo, W = lo[u], ws[u]
         alpha, beta, ahead = alpha_all[:, :W], beta_all[:W], ahead_all[:W]
+        for t in range(T):
+            lo_b[t], hi_b[t] = S, -1
+            for i in range(S):
+                if lik[u, t, i] > 0.0:
+                    lo_b[t] = min(lo_b[t], i)
+                    hi_b[t] = i
         tot = 0.0
         for i in range(S):
             first[i] = lik[u, 0, i]
@@ -649,28 +715,33 @@ def _forward_backward_changes(
             if t > 1:
                 anyw[:] = 0.0
                 for w in range(W):
-                    for i in range(S):
+                    reach = jlo + w - d[u, t - 2]  # alpha[t - 1, w] is zero outside its reach
+                    for i in range(max(0, reach, lo_b[t - 1]), min(S, S + reach, hi_b[t - 1] + 1)):
                         anyw[i] += alpha[t - 1, w, i]
             alpha[t] = 0.0
             tot = 0.0
             for w in range(W):
                 # the mass arriving at speed w, per bin of step t - 1, a row at a time (loops, not
-                # array expressions: numba makes a temporary array for each of those)
+                # array expressions: numba makes a temporary array for each of those), at the
+                # bins from which speed w stays within step t's window only
+                shift = jlo + w - d[u, t - 1]
+                # and within both steps' bands
+                i0 = max(0, -shift, lo_b[t - 1], lo_b[t] - shift)
+                i1 = min(S, S - shift, hi_b[t - 1] + 1, hi_b[t] + 1 - shift)
                 if t == 1:
-                    for i in range(S):
+                    for i in range(i0, i1):
                         came[i] = prior[jlo + w] * first[i]
                 else:
                     c = change * redraw * prior[jlo + w]
-                    for i in range(S):
+                    for i in range(i0, i1):
                         came[i] = (1.0 - change) * alpha[t - 1, w, i] + c * anyw[i]
                     for k in range(D):
                         was = w - deltas[k]
                         if 0 <= was < W:
                             c = change * (1.0 - redraw) * prob[k]
-                            for i in range(S):
+                            for i in range(i0, i1):
                                 came[i] += c * alpha[t - 1, was, i]
-                shift = jlo + w - d[u, t - 1]
-                for i in range(max(0, shift), min(S, S + shift)):
+                for i in range(i0 + shift, i1 + shift):
                     a = came[i - shift] * lik[u, t, i]
                     alpha[t, w, i] = a
                     tot += a
@@ -678,38 +749,56 @@ def _forward_backward_changes(
                 alive[u] = False
                 break
             evidence[u] += np.log(tot)
-            alpha[t] /= tot
+            inv = 1.0 / tot  # a product per bin, not a division (a fifth of the kernel's time)
+            for w in range(W):
+                reach = jlo + w - d[u, t - 1]
+                for i in range(max(0, reach, lo_b[t]), min(S, S + reach, hi_b[t] + 1)):
+                    alpha[t, w, i] *= inv
         if not alive[u]:
             continue
+        # every loop visits a speed's reach only: alpha[t, w] and ahead[w] are zero outside it,
+        # and beta[w] is read only within alpha[t - 1, w]'s (half the (speed, bin) pairs)
         beta[:] = 1.0
         for t in range(T - 1, 0, -1):
             for w in range(W):
-                for i in range(S):
+                reach = jlo + w - d[u, t - 1]
+                for i in range(max(0, reach, lo_b[t]), min(S, S + reach, hi_b[t] + 1)):
                     post[u, t, i] += alpha[t, w, i] * beta[w, i]
             for w in range(W):
                 shift = jlo + w - d[u, t - 1]
                 ahead[w] = 0.0
-                for i in range(max(0, -shift), min(S, S - shift)):
+                for i in range(max(0, -shift, lo_b[t] - shift), min(S, S - shift, hi_b[t] + 1 - shift)):
                     ahead[w, i] = lik[u, t, i + shift] * beta[w, i + shift]
             if t == 1:
                 break
             redrawn[:] = 0.0
             for w in range(W):
-                for i in range(S):
+                shift = jlo + w - d[u, t - 1]
+                for i in range(max(0, -shift, lo_b[t] - shift), min(S, S - shift, hi_b[t] + 1 - shift)):
                     redrawn[i] += prior[jlo + w] * ahead[w, i]
             c = change * redraw
+            top = 0.0
             for w in range(W):
-                for i in range(S):
+                reach = jlo + w - d[u, t - 2]
+                i0, i1 = max(0, reach, lo_b[t - 1]), min(S, S + reach, hi_b[t - 1] + 1)
+                for i in range(i0, i1):
                     beta[w, i] = (1.0 - change) * ahead[w, i] + c * redrawn[i]
                 for k in range(D):
                     to = w + deltas[k]
                     if 0 <= to < W:
                         ck = change * (1.0 - redraw) * prob[k]
-                        for i in range(S):
+                        for i in range(i0, i1):
                             beta[w, i] += ck * ahead[to, i]
-            beta /= max(beta.max(), 1e-300)
+                for i in range(i0, i1):
+                    top = max(top, beta[w, i])
+            inv = 1.0 / max(top, 1e-300)
+            for w in range(W):
+                reach = jlo + w - d[u, t - 2]
+                for i in range(max(0, reach, lo_b[t - 1]), min(S, S + reach, hi_b[t - 1] + 1)):
+                    beta[w, i] *= inv
         for w in range(W):  # the first step: its speed drawn from the prior
-            for i in range(S):
+            shift = jlo + w - d[u, 0]
+            for i in range(max(0, -shift), min(S, S - shift)):
                 post[u, 0, i] += prior[jlo + w] * ahead[w, i]
         for i in range(S):
             post[u, 0, i] *= first[i]
@@ -787,10 +876,15 @@ def _smooth_lines(
         lik = np.exp(ll - top)
         d = np.rint(np.diff(centre, axis=1) / h).astype(np.int64)
         for m, (kernel, motion, share) in enumerate(passes):
-            post, alive, ev = batch_map(kernel, 2, lik, d, *motion)
-            tracks[c : c + len(part), m] = (post[..., None] * pos).sum(2)
+            # a branch is weighed under the measured speeds only: a driver at speeds of its own
+            # drives them on its route too, and their pass is the dearer (the same tracks to 0.3 %)
+            rows = np.flatnonzero([m == 0 or not line[3] for line in part]) + c
+            if not len(rows):
+                continue
+            post, alive, ev = batch_map(kernel, 2, lik[rows - c], d[rows - c], *motion)
+            tracks[rows, m] = (post[..., None] * pos[rows - c]).sum(2)
             # every line of a user on one scale: each step's window's top put back
-            logw[c : c + len(part), m] = np.where(alive, ev + top[..., 0].sum(1) + np.log(share), -np.inf)
+            logw[rows, m] = np.where(alive, ev + top[rows - c, :, 0].sum(1) + np.log(share), -np.inf)
     # each user's track: every line and motion weighed by how well it explains the user's steps
     best = np.full(B, -np.inf)
     np.maximum.at(best, user, logw.max(1))

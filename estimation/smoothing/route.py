@@ -497,8 +497,8 @@ def _forward_backward(
     arrived = np.empty(S)
     again = np.empty(S)
     p_all = prior.sum()
-    lo_b = np.empty(T + 1, dtype=np.int64)  # each step's bins with a likelihood (its band)
-    hi_b = np.empty(T + 1, dtype=np.int64)
+    lo_b = np.empty(T, dtype=np.int64)  # each step's bins with a likelihood (its band)
+    hi_b = np.empty(T, dtype=np.int64)
     for u in range(n):
         lo_d, hi_d = d[u, 0], d[u, 0]
         for t in range(1, T - 1):
@@ -508,7 +508,6 @@ def _forward_backward(
         # A window wider at the end steps than between them (_relocate_ends) is zero outside
         # the narrow one there: every loop below visits its band only, and what it leaves out
         # would be zero (the rows it reads later are zeroed outside what it writes).
-        lo_b[T], hi_b[T] = 0, S - 1  # past the last step: everything
         for t in range(T):
             lo_b[t], hi_b[t] = S, -1
             for i in range(S):

@@ -440,6 +440,27 @@ def test_a_driver_turning_back_mid_street_is_left_alone(monkeypatch):
     assert not on.any() and np.array_equal(track, cells)
 
 
+def test_candidate_likelihoods_are_looked_up_per_step():
+    # a reference by dictionary: each position reads the grid point it rounds to, the likelier of
+    # the two where it lies halfway, a point listed twice its first listing, and a point that is
+    # no candidate its step's lowest candidate
+    rng = np.random.default_rng(5)
+    n, T, K, S = 3, 4, 6, 9
+    xy = 2.0 * rng.integers(0, 4, (n, T, K, 2)).astype(float)
+    xy[0, 0, 1] = xy[0, 0, 0]  # listed twice: the first listing counts
+    lp = rng.normal(size=(n, T, K))
+    pos = rng.integers(-2, 10, (n, T, S, 2)).astype(float)  # on grid points, halfway, off the candidates
+    got = route._candidate_loglik(xy, lp, pos, 2.0)
+    for u, t in itertools.product(range(n), range(T)):
+        table: dict[tuple[int, int], float] = {}
+        for k in range(K):
+            table.setdefault((int(xy[u, t, k, 0] // 2), int(xy[u, t, k, 1] // 2)), lp[u, t, k])
+        for s in range(S):
+            near = [sorted({int(np.floor(c / 2 + 0.5 - e)) for e in (1e-6, -1e-6)}) for c in pos[u, t, s]]
+            want = max(table.get((i, j), lp[u, t].min()) for i in near[0] for j in near[1])
+            assert got[u, t, s] == want
+
+
 def test_a_street_halfway_between_grid_rows_reads_the_likelier_row():
     # a 2 m grid whose rows y = 0 and y = 2 lie 1 m either side of the street: which row a
     # driver on it reads is the grid's rounding (here y = 0, whose points tell where along the

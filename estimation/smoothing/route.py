@@ -124,7 +124,8 @@ street in its first) often runs on straight through it, and the route built from
 misses the street the driver is on. On `pt67`'s network (`default.zarr`, 6 dB, 7 steps, the first
 1000 vehicles of each split, three draws; with end steps off the streets routed by the others,
 :func:`_street_nodes`): seen area -4.3 to -6.4 %, held out -0.9 to -2.9 %, validation -1.7 to
--2.8 %. The route pass then takes 3.3 to 4.4 s per 1000 vehicles instead of 1.6 to 2.2 s."""
+-2.8 %. The route pass then takes 2.0 to 2.5 s per 1000 vehicles instead of 1.1 to 1.4 s (the
+same draws, 2 threads)."""
 _CHUNK = 64  # users per pass (chunk x steps x window positions and likelihoods)
 _BACK = 10.0  # cost per metre a track's arc length runs back (beyond the slack), in metres of distance
 _BACK_SLACK = 0.2  # typical steps an arc length may run back unpunished (a stopped user's jitter)
@@ -465,6 +466,21 @@ def _lookup(cand: np.ndarray, lp: np.ndarray, near: np.ndarray) -> np.ndarray:  
 
 
 @numba.njit(cache=True, nogil=True)
+def _bands(lik: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Each step's band of ``lik (T, S)``, its first and last bin with a likelihood, into ``lo``
+    and ``hi (T,)`` (``S`` and ``-1`` where none has one). The route's kernels visit the bands
+    only: a window wider at the end steps than between them (:func:`_relocate_ends`) is zero
+    outside the narrow one there."""
+    T, S = lik.shape
+    for t in range(T):
+        lo[t], hi[t] = S, -1
+        for i in range(S):
+            if lik[t, i] > 0.0:
+                lo[t] = min(lo[t], i)
+                hi[t] = i
+
+
+@numba.njit(cache=True, nogil=True)
 def _forward_backward(
     lik: np.ndarray, d: np.ndarray, prior: np.ndarray, change: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
@@ -497,7 +513,7 @@ def _forward_backward(
     arrived = np.empty(S)
     again = np.empty(S)
     p_all = prior.sum()
-    lo_b = np.empty(T, dtype=np.int64)  # each step's bins with a likelihood (its band)
+    lo_b = np.empty(T, dtype=np.int64)  # each step's band (_bands)
     hi_b = np.empty(T, dtype=np.int64)
     for u in range(n):
         lo_d, hi_d = d[u, 0], d[u, 0]
@@ -505,15 +521,9 @@ def _forward_backward(
             lo_d, hi_d = min(lo_d, d[u, t]), max(hi_d, d[u, t])
         jlo, jhi = max(0, lo_d - (S - 1)), min(V - 1, hi_d + (S - 1))
         W = max(jhi - jlo + 1, 0)
-        # A window wider at the end steps than between them (_relocate_ends) is zero outside
-        # the narrow one there: every loop below visits its band only, and what it leaves out
-        # would be zero (the rows it reads later are zeroed outside what it writes).
-        for t in range(T):
-            lo_b[t], hi_b[t] = S, -1
-            for i in range(S):
-                if lik[u, t, i] > 0.0:
-                    lo_b[t] = min(lo_b[t], i)
-                    hi_b[t] = i
+        # every loop below visits the steps' bands only, and what it leaves out would be zero
+        # (the rows it reads later are zeroed outside what it writes)
+        _bands(lik[u], lo_b, hi_b)
         p_in = 0.0
         for w in range(W):
             p_in += prior[jlo + w]
@@ -690,17 +700,12 @@ def _forward_backward_changes(
     beta_all = np.empty((max(ws.max(), 1), S))
     ahead_all = np.empty((max(ws.max(), 1), S))
     redrawn = np.empty(S)
-    lo_b = np.empty(T, dtype=np.int64)  # each step's band, as in _forward_backward
+    lo_b = np.empty(T, dtype=np.int64)  # each step's band (_bands)
     hi_b = np.empty(T, dtype=np.int64)
     for u in range(n):
         jlo, W = lo[u], ws[u]
         alpha, beta, ahead = alpha_all[:, :W], beta_all[:W], ahead_all[:W]
-        for t in range(T):
-            lo_b[t], hi_b[t] = S, -1
-            for i in range(S):
-                if lik[u, t, i] > 0.0:
-                    lo_b[t] = min(lo_b[t], i)
-                    hi_b[t] = i
+        _bands(lik[u], lo_b, hi_b)
         tot = 0.0
         for i in range(S):
             first[i] = lik[u, 0, i]

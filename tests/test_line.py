@@ -118,6 +118,18 @@ def test_a_second_stage_reads_the_posterior_as_many_more_lines_do(monkeypatch):
     assert np.abs(d_two - d_dense).mean() < max(np.abs(d_one - d_dense).mean(), 0.05)
 
 
+def test_a_stage_narrows_its_speed_bins_to_the_posterior():
+    # bins 10..19 of a table; the posterior holds bins 13 and 15 (bin 17's share is below 1e-4):
+    # the next stage reads 12..16, one more either side, and never leaves 10..19
+    mass = np.zeros(10)
+    mass[[3, 5, 7]] = [0.6, 0.4, 0.5e-4]
+    assert line.narrow_bins(mass, 10, 19, 1.0) == (12, 16)
+    edge = np.zeros(10)
+    edge[[0, 9]] = 0.5
+    assert line.narrow_bins(edge, 10, 19, 1.0) == (10, 19)
+    assert line.narrow_bins(np.ones(1), 4, 4, 1.0) == (4, 4)
+
+
 def test_walk_speeds_are_measured_on_the_walkers():
     t = np.arange(5.0)
     walkers = np.stack(

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from estimation.smoothing.line import LINE_BINS, line_track, line_weight
+from estimation.smoothing import two_lines
+from estimation.smoothing.line import LINE_BINS, fill_raster, line_track, line_weight
 from estimation.smoothing.motion import MotionTable
 from estimation.smoothing.two_lines import free_raster, two_line_track, walk_restarts
 from tests.helpers.candidates import grid_candidates
@@ -67,6 +68,42 @@ def test_a_walker_who_stops_is_read_along_its_two_lines():
     _, wrong = two_line_track(cells, xy, lp, speeds, 1.0, line, delta, _speeds(0.6), 0.1)
     assert np.median(line_weight(wrong)) < 0.5 * np.median(line_weight(mixed))
     assert (wrong < mixed - 5).mean() >= 0.85
+
+
+def test_a_familys_later_stages_draw_speeds_where_its_posterior_is():
+    # a stop at step 3 and a restart table from 0.3 to 3 m per step: the stages narrow the restart
+    # speeds to the bins the posterior holds, so the last stage's lines all set off near 1.4 m
+    true = _stoppers(1, 1.4, stop=3)
+    xy, lp, cells = grid_candidates(true)
+    T = true.shape[1]
+    side = 2 * two_lines.TWO_LINE_HALF + 1
+    raster, ox, oy = np.empty((T, side, side)), np.empty(T), np.empty(T)
+    track = np.ascontiguousarray(cells[0])
+    fill_raster(xy[0], lp[0], track, 1.0, raster, ox, oy)
+    n = len(two_lines._OFFSETS6)
+    buffers, mean = (np.empty(n), np.empty((n, T)), np.empty((n, T))), np.empty((T, 2))
+    restarts = _speeds(*np.arange(0.3, 3.01, 0.05))
+    no_walls = np.zeros((0, 0), bool), np.zeros(2), 1.0
+    ev = two_lines._family(
+        True,
+        track,
+        3,
+        _speeds(1.4),
+        restarts,
+        1.0,
+        two_lines._OFFSETS6,
+        ox,
+        oy,
+        raster,
+        *no_walls,
+        buffers,
+        mean,
+    )
+    _, px, py = buffers
+    set_off = np.hypot(px[:, -1] - px[:, -2], py[:, -1] - py[:, -2])
+    assert np.isfinite(ev)
+    assert 0.9 < set_off.min() and set_off.max() < 2.1
+    assert np.linalg.norm(mean - true[0], axis=-1).mean() < 0.4
 
 
 def test_walkers_without_a_short_step_keep_their_lines():

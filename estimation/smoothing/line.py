@@ -208,6 +208,18 @@ def narrow_box(box, d, m1, m2, total, spread, apart):  # pragma: no cover - comp
 
 
 @njit(cache=True, nogil=True)
+def narrow_bins(mass, lo, hi, total):  # pragma: no cover - compiled
+    """The next stage's speed bins: of a stage's bins ``lo..hi`` (``mass[q]`` the posterior
+    weight of bin ``lo + q``, ``total`` all of it), those from the first to the last holding more
+    than ``1e-4`` of it, with one more either side within ``lo..hi``. Returns ``(lo, hi)``."""
+    first, last = hi - lo + 1, -1
+    for q in range(hi - lo + 1):
+        if mass[q] > 1e-4 * total:
+            first, last = min(first, q), max(last, q)
+    return max(lo + first - 1, lo), min(lo + last + 1, hi)
+
+
+@njit(cache=True, nogil=True)
 def fill_raster(xy, lp, centres, spacing, raster, ox, oy):  # pragma: no cover - compiled
     """Each step's candidates ``xy (T, K, 2)``, ``lp (T, K)`` on a square raster ``(T, S, S)``
     around the grid point nearest ``centres (T, 2)``, each cell the best candidate on it and the
@@ -368,9 +380,5 @@ def _line_kernel(
             # bins that hold any of its mass with one more either side
             for d in range(3):
                 narrow_box(box, d, m1[d], m2[d], total, spread, spacing_of_lines)
-            first, last = n_kb, -1
-            for q in range(n_kb):
-                if kb_mass[q] > 1e-4 * total:
-                    first, last = min(first, q), max(last, q)
-            kb_lo, kb_hi = max(kb_lo + first - 1, kb_lo), min(kb_lo + last + 1, kb_hi)
+            kb_lo, kb_hi = narrow_bins(kb_mass, kb_lo, kb_hi, total)
     return out, delta

@@ -18,12 +18,13 @@ families of such walks, each a family per step where the track allows one:
   straight ahead is blocked (:data:`TURN_BLOCKED`) or free (:data:`TURN_FREE`): people turn where
   a wall is ahead, and almost nowhere else at that angle.
 
-Each family's lines are drawn in :data:`TWO_LINE_STAGES` stages around its posterior, as the
-straight lines are, over six coordinates (where the pieces meet, the two headings and the two
-speeds). The straight lines and every family are mixed by their evidence, a stop weighed by the
-share of the training walkers' moving steps a stop followed (:func:`walk_restarts`) times
-``exp(STOP_BIAS)``. The mixture's evidence takes the place of the straight lines' own ``delta``
-(the same units: a user no family applies to keeps both).
+Each family's lines are drawn in :data:`TWO_LINE_STAGES` stages of :data:`TWO_LINE_LINES`
+around its posterior, as the straight lines are, over six coordinates (where the pieces meet, the
+two headings and the two speeds): each stage within the box and the speed bins that hold the
+previous one's posterior. The straight lines and every family are mixed by their evidence, a
+stop weighed by the share of the training walkers' moving steps a stop followed
+(:func:`walk_restarts`) times ``exp(STOP_BIAS)``. The mixture's evidence takes the place of the
+straight lines' own ``delta`` (the same units: a user no family applies to keeps both).
 """
 
 from __future__ import annotations
@@ -36,7 +37,6 @@ from mmwsim._threads import batch_map
 from .line import (
     _MIN_STEP,
     LINE_BINS,
-    LINE_LINES,
     LINE_REACH,
     LINE_SPEEDS,
     LINE_SPREAD,
@@ -45,6 +45,7 @@ from .line import (
     fill_raster,
     fit_line,
     length_shares,
+    narrow_bins,
     narrow_box,
     prior_bins,
     raster_at,
@@ -65,8 +66,14 @@ __all__ = [
 
 STOP_GATE = 1.0
 """Grid spacings: a step of the track shorter than this may be a stop, and is weighed as one."""
-TWO_LINE_STAGES = 3
-"""Stages of lines per family, each within the box of the previous one's posterior."""
+TWO_LINE_STAGES = 4
+"""Stages of lines per family, each within the box of the previous one's posterior and its speed
+bins. With :data:`TWO_LINE_LINES`, chosen on 1000 users per kind of ``default.zarr`` (three draws
+of each of validation, seen area and held out, `runs/tn-match-tracking` of the README): against
+three stages of 4096 lines whose speeds stayed in the whole window, pedestrians -0.1 to -0.5 %
+on all nine draws (validation -0.4 / -0.2 / -0.2 %), cyclists -0.4 to +0.1 %, at the same cost.
+Speed bins narrowed with three stages of 4096: pedestrians 0 to -0.5 %; four stages of 4096:
+-0.2 to -0.7 % at 4 / 3 the cost; five of 2458: alike."""
 STOP_BIAS = 1.4
 """Nats added to the log share of stops in a stop family's prior. Chosen on 1000 validation users
 per kind of ``default.zarr`` (three draws; its stop share is 0.091): priors of -1.6 to 0 nats in
@@ -87,7 +94,10 @@ TWO_LINE_TURN = 0.5
 fewer (:data:`~estimation.smoothing.line.LINE_TURN` where longer)."""
 TWO_LINE_HALF = 5
 """Grid spacings either side of each step's tracked point that its raster of candidates spans."""
-_OFFSETS6 = _offsets(LINE_LINES, 6)
+TWO_LINE_LINES = 3072
+"""Lines per stage of a family: :data:`TWO_LINE_STAGES` stages of them cost what three stages of
+:data:`~estimation.smoothing.line.LINE_LINES` did."""
+_OFFSETS6 = _offsets(TWO_LINE_LINES, 6)
 
 FreeRaster = tuple[np.ndarray, np.ndarray, float]
 """The free space on the grid: ``(free (nx, ny) bool, origin (2,) metres, spacing metres)``, cell
@@ -325,6 +335,7 @@ def _family(
     lines_apart = 1.0 / N ** (1.0 / 6.0)  # of a box's side, for N quasi-random lines in six dimensions
     log_ev = -np.inf
     m1, m2 = np.zeros(6), np.zeros(6)
+    mass_a, mass_b = np.zeros(len(bins_a)), np.zeros(len(bins_b))  # a stage's weight per speed bin
     for stage in range(TWO_LINE_STAGES):
         top = _weigh_two_lines(
             stand, jv, at, head, turn, box, bins_a, lp_a, range_a, bins_b, lp_b, range_b, offsets, ox,
@@ -335,6 +346,9 @@ def _family(
         mean[:] = 0.0  # the last stage's posterior mean
         m1[:] = 0.0  # an earlier stage's moments of the box's coordinates
         m2[:] = 0.0
+        n_a, n_b = range_a[1] - range_a[0] + 1, range_b[1] - range_b[0] + 1
+        mass_a[:] = 0.0
+        mass_b[:] = 0.0
         for n in range(N):
             w = np.exp(ll[n] - top)
             total += w
@@ -347,23 +361,28 @@ def _family(
                 g = box[2 * d] + offsets[n, d] * (box[2 * d + 1] - box[2 * d])
                 m1[d] += w * g
                 m2[d] += w * g * g
+            mass_a[min(int(offsets[n, 3] * n_a), n_a - 1)] += w
+            mass_b[min(int(offsets[n, 5] * n_b), n_b - 1)] += w
         mean /= total
         share = (box[1] - box[0]) * (box[3] - box[2])
         log_ev = top + np.log(total / N)
         if before:
-            share *= (box[5] - box[4]) * len(bins_a)
+            share *= (box[5] - box[4]) * n_a
             log_ev += np.log(turn[0] / LINE_TURN)
         if after:
-            share *= (box[9] - box[8]) * len(bins_b)
+            share *= (box[9] - box[8]) * n_b
             log_ev += np.log(turn[1] / np.pi)
         log_ev += np.log(share)
         if last:
             break
-        # the next stage's box: where the pieces meet and the headings of the pieces that have one
+        # the next stage's box: where the pieces meet and the headings of the pieces that have one,
+        # and the speed bins that hold the posterior (as the straight lines' stages narrow theirs)
         for d in range(5):
             if d == 3 or (d == 2 and not before) or (d == 4 and not after):
                 continue
             narrow_box(box, d, m1[d], m2[d], total, LINE_SPREAD, lines_apart)
+        range_a[0], range_a[1] = narrow_bins(mass_a, range_a[0], range_a[1], total)
+        range_b[0], range_b[1] = narrow_bins(mass_b, range_b[0], range_b[1], total)
     return log_ev
 
 

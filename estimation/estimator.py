@@ -28,11 +28,12 @@ from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
-from .smoothing.line import LINE_MIN_STEPS, line_track, line_weight
+from .smoothing.line import LINE_MIN_STEPS, line_weight
 from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
 from .smoothing.route import route_track
-from .smoothing.two_lines import FreeRaster, free_raster, two_line_track
+from .smoothing.two_lines import FreeRaster, free_raster
+from .smoothing.walks import walk_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -271,7 +272,9 @@ class Estimator(nn.Module):
         users (:func:`~estimation.smoothing.line.line_track`), and with walks of two lines
         (:func:`~estimation.smoothing.two_lines.two_line_track`): a turn where the attached grid's
         free space ends ahead, and a stop where the model measured how its walkers set off after
-        one; each by how well the lines explain its steps, before they are returned (default
+        one; a fast walker's searched again around its likeliest candidates near its track
+        (:func:`~estimation.smoothing.walks.walk_track`); each by how well the lines explain its
+        steps, before they are returned (default
         True; only where the model measured those speeds). :meth:`OnlineTracker.update`'s
         current positions do not.
     """
@@ -615,10 +618,9 @@ class Estimator(nn.Module):
         if not len(walk):
             return tracked
         xy, lp = np.asarray(x[0], np.float64)[walk], np.asarray(x[1][..., 0], np.float64)[walk]
-        line, delta = line_track(t[walk], xy, lp, fine.walk_speeds.numpy(), step)
         # models saved before the restart speeds were measured weigh no stops
-        line, delta = two_line_track(
-            t[walk], xy, lp, fine.walk_speeds.numpy(), step, line, delta, fine.walk_restarts.numpy(),
+        line, delta = walk_track(
+            t[walk], xy, lp, fine.walk_speeds.numpy(), step, fine.walk_restarts.numpy(),
             float(fine.walk_stop), self._free_space(),
         )  # fmt: skip
         w = line_weight(delta)[:, None, None]

@@ -3,8 +3,8 @@
 :func:`walk_track` composes the passes of :mod:`~estimation.smoothing.line` and
 :mod:`~estimation.smoothing.two_lines`, which search around the smoother's track. A fast walker
 (a cyclist) whose track the smoother read too slow, or cut across a corner, lies outside what
-they search: its true walk is likelier than the track, but a whole speed bin or metres of corner
-away. So for each walker whose track's median step exceeds :data:`WALK_FAST` spacings, both
+they search: its true walk is likelier than the track, but a metre per step faster or metres
+off the corner the track cut. So for each walker whose track's median step exceeds :data:`WALK_FAST` spacings, both
 passes run again around a second centre, each step's likeliest candidate within
 :data:`WALK_REACH` of the tracked point, where that centre lies more than
 :data:`WALK_MOVE` from the track at some step. The two searches are mixed by their evidence, as
@@ -29,8 +29,9 @@ the pedestrians' aliases lose what the cyclists gain: pedestrians -0.8 to +1.0 %
 +1.0 / -0.2 / -0.4 %)."""
 WALK_REACH = 5.0
 """Grid spacings from each tracked point within which the second centre takes the likeliest
-candidate. On the validation draws above (mean of the three), cyclists -1.4 % at 5 spacings; at 1.5
-and 2 of the track's median steps (3 to 5 spacings for these walkers) -0.8 and -1.2 %."""
+candidate. On the validation draws of :data:`WALK_FAST` (mean of the three), cyclists -1.4 % at 5
+spacings; at 1.5 and 2 of the track's median steps (3 to 5 spacings for these walkers) -0.8 and
+-1.2 %."""
 WALK_MOVE = 1.0
 """Grid spacings: the second search runs only for walkers whose second centre lies farther than
 this from the track at some step (a third to a half of the cyclists; at 0.5 the same gains)."""

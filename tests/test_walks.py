@@ -19,6 +19,17 @@ def _slowed(true: np.ndarray, factor: float) -> np.ndarray:
     return mid + factor * (true - mid)
 
 
+def _both_searches(step: float, factor: float, speeds: np.ndarray, n: int, seed: int):
+    """Walkers at ``step`` metres per step read ``factor`` times as fast: their true walks, the two
+    passes' track and evidence around that track, and ``walk_track``'s."""
+    true = _walkers(n, step, seed=seed)
+    xy, lp, _ = grid_candidates(true, radius=2)
+    slow = _slowed(true, factor)
+    line, delta = line_track(slow, xy, lp, speeds, 1.0)
+    first, d_first = two_line_track(slow, xy, lp, speeds, 1.0, line, delta)
+    return true, (slow, xy, lp), (first, d_first), walk_track(slow, xy, lp, speeds, 1.0)
+
+
 def test_near_best_takes_the_likeliest_candidate_within_reach():
     tracked = np.zeros((2, 1, 2))
     xy = np.array([[[[0.5, 0.0], [3.0, 0.0], [0.0, 1.5]]], [[[9.0, 0.0], [0.0, 9.0], [6.0, 0.0]]]])
@@ -37,13 +48,7 @@ def test_a_fast_walker_read_too_slow_is_found_by_the_second_search():
     # cyclists at 3.4 m per step whose track the smoother read at 70 % of their speed: the lines
     # around that track search speeds near 2.4 m and miss them; around their likeliest
     # candidates near the track they are found, to well inside the cells
-    true = _walkers(20, 3.4, seed=5)
-    xy, lp, cells = grid_candidates(true, radius=2)
-    slow = _slowed(true, 0.7)
-    speeds = _speeds(2.4, 3.4)
-    line, delta = line_track(slow, xy, lp, speeds, 1.0)
-    first, d_first = two_line_track(slow, xy, lp, speeds, 1.0, line, delta)
-    track, d = walk_track(slow, xy, lp, speeds, 1.0)
+    true, _, (first, d_first), (track, d) = _both_searches(3.4, 0.7, _speeds(2.4, 3.4), 20, seed=5)
     err = np.linalg.norm(track - true, axis=-1).mean()
     assert err < 0.3 < np.linalg.norm(first - true, axis=-1).mean()
     assert (line_weight(d) > 0.5).all() and (line_weight(d_first) < 0.01).all()
@@ -52,16 +57,11 @@ def test_a_fast_walker_read_too_slow_is_found_by_the_second_search():
 
 def test_a_slow_walker_is_searched_once(monkeypatch):
     # pedestrians at 1.4 m per step, read too slow too: no second search, the two passes' own
-    true = _walkers(10, 1.4, seed=6)
-    xy, lp, _ = grid_candidates(true, radius=2)
-    slow = _slowed(true, 0.5)
     speeds = _speeds(0.7, 1.4)
-    line, delta = line_track(slow, xy, lp, speeds, 1.0)
-    first, d_first = two_line_track(slow, xy, lp, speeds, 1.0, line, delta)
-    track, d = walk_track(slow, xy, lp, speeds, 1.0)
+    true, inputs, (first, d_first), (track, d) = _both_searches(1.4, 0.5, speeds, 10, seed=6)
     np.testing.assert_array_equal(track, first)
     np.testing.assert_array_equal(d, d_first)
     # with the gate below their speed they are searched again, and found
     monkeypatch.setattr(walks, "WALK_FAST", 0.5)
-    again, _ = walk_track(slow, xy, lp, speeds, 1.0)
+    again, _ = walk_track(*inputs, speeds, 1.0)
     assert np.linalg.norm(again - true, axis=-1).mean() < 0.5 * np.linalg.norm(first - true, axis=-1).mean()

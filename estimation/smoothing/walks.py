@@ -4,9 +4,9 @@
 :mod:`~estimation.smoothing.two_lines`, which search around the smoother's track. A fast walker
 (a cyclist) whose track the smoother read too slow, or cut across a corner, lies outside what
 they search: its true walk is likelier than the track, but a metre per step faster or metres
-off the corner the track cut. So for each walker whose track's median step exceeds :data:`WALK_FAST` spacings, both
-passes run again around a second centre, each step's likeliest candidate within
-:data:`WALK_REACH` of the tracked point, where that centre lies more than
+off the corner the track cut. So for each walker whose track's median step exceeds
+:data:`WALK_FAST` spacings, both passes run again around a second centre, each step's likeliest
+candidate within :data:`WALK_REACH` of the tracked point, where that centre lies more than
 :data:`WALK_MOVE` from the track at some step. The two searches are mixed by their evidence, as
 the families within each are.
 """
@@ -106,19 +106,15 @@ def walk_track(
     if not len(fast):
         return track, delta
     centre = near_best(tracked[fast], xy[fast], lp[fast], np.full(len(fast), WALK_REACH * spacing))
-    moved = fast[np.linalg.norm(centre - tracked[fast], axis=-1).max(1) > WALK_MOVE * spacing]
-    if not len(moved):
+    far = np.linalg.norm(centre - tracked[fast], axis=-1).max(1) > WALK_MOVE * spacing
+    if not far.any():
         return track, delta
-    centre = np.ascontiguousarray(centre[np.isin(fast, moved)])
-    other, d_other = _both_passes(centre, xy[moved], lp[moved], *args)
-    # the two searches mixed by their evidence
-    d_one = delta[moved]
-    top = np.maximum(d_one, d_other)
-    some = np.isfinite(top)
-    top = np.where(some, top, 0.0)
-    w_one, w_other = np.exp(d_one - top), np.exp(d_other - top)
-    total = np.where(some, w_one + w_other, 1.0)
-    mixed = (w_one[:, None, None] * track[moved] + w_other[:, None, None] * other) / total[:, None, None]
-    track[moved] = np.where(some[:, None, None], mixed, track[moved])
-    delta[moved] = np.where(some, top + np.log(total), -np.inf)
+    moved = fast[far]
+    other, d_other = _both_passes(np.ascontiguousarray(centre[far]), xy[moved], lp[moved], *args)
+    # the two searches mixed by their evidence: the second's share of it
+    both = np.logaddexp(delta[moved], d_other)
+    with np.errstate(invalid="ignore"):  # neither search weighs a line: -inf less -inf
+        share = np.where(np.isfinite(both), np.exp(d_other - both), 0.0)
+    track[moved] += share[:, None, None] * (other - track[moved])
+    delta[moved] = both
     return track, delta

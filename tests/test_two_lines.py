@@ -1,4 +1,4 @@
-"""Walkers whose walk is two lines: a stop, or a turn at a wall (estimation.smoothing.two_lines)."""
+"""Walkers whose walk is two lines: a stop, a turn at a wall or a change of speed (estimation.smoothing.two_lines)."""
 
 from __future__ import annotations
 
@@ -70,6 +70,44 @@ def test_a_walker_who_stops_is_read_along_its_two_lines():
     assert (wrong < mixed - 5).mean() >= 0.85
 
 
+def _pacers(n: int, before: float, after: float, at: int, T: int = 7, seed: int = 0) -> np.ndarray:
+    """``n`` straight walks at ``before`` metres per step up to step ``at``, ``after`` from there."""
+    rng = np.random.default_rng(seed)
+    h = rng.uniform(0, 2 * np.pi, n)
+    start = rng.uniform(0, 1, (n, 2)) + 20.0
+    t = np.arange(T)
+    along = np.where(t <= at, before * t, before * at + after * (t - at))
+    return start[:, None] + along[None, :, None] * np.stack([np.cos(h), np.sin(h)], -1)[:, None]
+
+
+def test_a_cyclist_who_changes_speed_is_read_along_both_speeds():
+    # 3.4 m per step, then 4.35 from step 3 on, straight ahead: no line at one speed explains it,
+    # the family that changes speed does (the cells leave the step of the change a step uncertain)
+    true = _pacers(30, 3.4, 4.35, at=3)
+    xy, lp, cells = grid_candidates(true)
+    speeds = _speeds(2.45, 3.4, 4.35)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    track, mixed = two_line_track(cells, xy, lp, speeds, 1.0, line, delta)
+    err = lambda a: np.linalg.norm(a - true, axis=-1).mean()  # noqa: E731
+    assert err(track) < 0.8 * err(cells) and err(track) < 0.4 * err(line)
+    assert (mixed > delta + 5).mean() >= 0.85 and (mixed >= delta).all()
+    w, w_line = line_weight(mixed)[:, None, None], line_weight(delta)[:, None, None]
+    assert err(w * track + (1 - w) * cells) < 0.8 * err(w_line * line + (1 - w_line) * cells)
+    # at one speed throughout, the lines at that speed keep most of the weight
+    same = _pacers(30, 3.4, 3.4, at=3)
+    xy, lp, cells = grid_candidates(same)
+    line, delta = line_track(cells, xy, lp, speeds, 1.0)
+    kept, _ = two_line_track(cells, xy, lp, speeds, 1.0, line, delta)
+    off = lambda a: np.linalg.norm(a - same, axis=-1).mean()  # noqa: E731
+    assert off(kept) < 1.2 * off(line) and off(kept) < 0.6 * off(cells)
+    # at a walker's speeds, no change of speed is weighed
+    slow = _pacers(30, 1.4, 1.7, at=3)
+    xy, lp, cells = grid_candidates(slow)
+    line, delta = line_track(cells, xy, lp, _speeds(1.4, 1.7), 1.0)
+    kept, d2 = two_line_track(cells, xy, lp, _speeds(1.4, 1.7), 1.0, line, delta)
+    assert np.array_equal(kept, line) and np.array_equal(d2, delta)
+
+
 def test_a_familys_later_stages_draw_speeds_where_its_posterior_is():
     # a stop at step 3 and a restart table from 0.3 to 3 m per step: the stages narrow the restart
     # speeds to the bins the posterior holds, so the last stage's lines all set off near 1.4 m
@@ -85,7 +123,7 @@ def test_a_familys_later_stages_draw_speeds_where_its_posterior_is():
     restarts = _speeds(*np.arange(0.3, 3.01, 0.05))
     no_walls = np.zeros((0, 0), bool), np.zeros(2), 1.0
     ev = two_lines._family(
-        True,
+        two_lines._STOP,
         track,
         3,
         _speeds(1.4),
@@ -98,6 +136,7 @@ def test_a_familys_later_stages_draw_speeds_where_its_posterior_is():
         *no_walls,
         buffers,
         mean,
+        -np.inf,
     )
     _, px, py = buffers
     set_off = np.hypot(px[:, -1] - px[:, -2], py[:, -1] - py[:, -2])

@@ -1,10 +1,11 @@
-"""Tracks of walkers whose walk is two lines: a stop between them, or a turn away from a wall.
+"""Tracks of walkers whose walk is two lines: a stop between them, a turn away from a wall, or a
+change of speed.
 
 A walker who stops for a step, or turns because a building blocks the way ahead, leaves no
 straight line through its candidates, so the straight-line pass (:mod:`~estimation.smoothing.line`)
 gives it up to the smoother, though both pieces of its walk are lines at measured speeds that
-pin it down as well as a straight walk does. :func:`two_line_track` weighs, for each walker, two
-families of such walks, each a family per step where the track allows one:
+pin it down as well as a straight walk does. :func:`two_line_track` weighs, for each walker, three
+kinds of families of such walks, each a family per step where the track allows one:
 
 * **a stop** at a step where the track moves less than :data:`STOP_GATE` spacings: the first
   piece ending where the user stands, at one of the measured walk speeds
@@ -16,14 +17,19 @@ families of such walks, each a family per step where the track allows one:
   outside the free space within a spacing either side: the two pieces meeting at that step, at
   one speed, the second in a heading of its own. Each line is weighed by whether its own way
   straight ahead is blocked (:data:`TURN_BLOCKED`) or free (:data:`TURN_FREE`): people turn where
-  a wall is ahead, and almost nowhere else at that angle.
+  a wall is ahead, and almost nowhere else at that angle;
+* **a change of speed** for a walker faster than :data:`PACE_FAST` (a cyclist, whose speed
+  changes by a quarter at a time), at the one step where a walk along the track's line that
+  changes speed there fits the track best, if the change exceeds :data:`PACE_GATE`: the two
+  pieces meeting at that step in one heading, each at one of the measured walk speeds.
 
 Each family's lines are drawn in :data:`TWO_LINE_STAGES` stages of :data:`TWO_LINE_LINES`
 around its posterior, as the straight lines are, over six coordinates (where the pieces meet, the
 two headings and the two speeds): each stage within the box and the speed bins that hold the
-previous one's posterior. The straight lines and every family are mixed by their evidence, a
-stop weighed by the share of the training walkers' moving steps a stop followed
-(:func:`walk_restarts`) times ``exp(STOP_BIAS)``. The mixture's evidence takes the place of the
+previous one's posterior. A family whose first stage lies :data:`FAMILY_PRUNE` below the walks
+weighed before it is dropped there. The straight lines and every family are mixed by their
+evidence, a stop weighed by the share of the training walkers' moving steps a stop followed
+(:func:`walk_restarts`) times ``exp(STOP_BIAS)``, a change of speed by ``exp(PACE_BIAS)``. The mixture's evidence takes the place of the
 straight lines' own ``delta`` (the same units: a user no family applies to keeps both).
 """
 
@@ -86,6 +92,24 @@ TURN_FREE = -12.0
 :data:`TURN_BLOCKED`, chosen on 1000 validation users per kind of ``default.zarr`` (three
 draws; blocked 2 to 8 nats, free -8 to -16: pedestrians -0.06 to -0.35 %, cyclists -0.5 to
 -0.7 %)."""
+PACE_FAST = 2.0
+"""Grid spacings per step: a walker whose track's median step is longer (our cyclists, not our
+pedestrians, whose speed changes by a fifth at a time) is weighed changing its speed too. On
+1000 users per kind of ``default.zarr`` (`runs/tn-match-tracking` of the README, three draws of
+each of validation, seen area and held out): cyclists -0.1 to -1.3 % on all nine draws
+(validation -0.8 / -1.3 / -0.7 %), pedestrians unchanged; the walks of two lines took 0.89 s
+per 1445 seen walkers against 0.94 s before (with :data:`FAMILY_PRUNE`)."""
+PACE_GATE = 0.3
+"""Grid spacings per step: the least change of speed weighed (the fitted walk's). On the
+validation draws of :data:`PACE_FAST`, with two free lines for the fit: 0.15 / 0.3 / 0.5 gave
+-0.8 / -0.8 / -0.6 % on the cyclists; families at every step instead of the best one alike at
+three times the cost, and at the best step's neighbours too no better."""
+PACE_BIAS = -2.0
+"""Nats added to the evidence of a family of walks that change speed (-1 to -4: within 0.1 %)."""
+FAMILY_PRUNE = 40.0
+"""Nats: a family whose first stage's evidence lies this far below the likeliest walk weighed
+before it is dropped (its weight ``exp(-40)`` of that walk's) instead of narrowed: the tracks
+move by 3e-9 m, for 7 % of the pass's time (at 25 nats they move by up to 0.2 m)."""
 TWO_LINE_WINDOW = 0.8
 """Grid spacings per step: the walk speeds weighed for the first piece lie this near its fitted
 line's."""
@@ -98,6 +122,8 @@ TWO_LINE_LINES = 3072
 """Lines per stage of a family: :data:`TWO_LINE_STAGES` stages of them cost what three stages of
 :data:`~estimation.smoothing.line.LINE_LINES` did."""
 _OFFSETS6 = _offsets(TWO_LINE_LINES, 6)
+
+_STOP, _TURN, _PACE = 0, 1, 2  # the kinds of family
 
 FreeRaster = tuple[np.ndarray, np.ndarray, float]
 """The free space on the grid: ``(free (nx, ny) bool, origin (2,) metres, spacing metres)``, cell
@@ -186,7 +212,7 @@ def two_line_track(
     delta = np.asarray(delta, dtype=np.float64)
     B, T = line.shape[:2]
     stops = restarts is not None and len(restarts) > 0 and stop_share > 0
-    if B == 0 or T < 3 or not len(speeds) or not (stops or free is not None):
+    if B == 0 or T < 3 or not len(speeds):
         return line.copy(), delta.copy()
     mask, origin, res = free if free is not None else (np.zeros((0, 0), bool), np.zeros(2), 1.0)
     return batch_map(
@@ -226,7 +252,7 @@ def _wall_ahead(tr, jv, free, origin, res, spacing):  # pragma: no cover - compi
 
 @njit(cache=True, nogil=True)
 def _weigh_two_lines(
-    stand,
+    kind,
     jv,
     at,
     head,
@@ -253,17 +279,18 @@ def _weigh_two_lines(
     """One stage of a family of walks of two lines that meet at step ``jv``: within
     :data:`LINE_REACH` of ``at (2,)``, the two pieces' headings within ``turn (2,)`` of
     ``head (2,)``, their speeds in the bins ``range_a``, ``range_b`` (lowest, highest) of
-    ``bins_a``, ``bins_b``; ``box (12,)`` the fractions of those ranges drawn in. With ``stand``
-    the user stands at step ``jv + 1`` too (a stop); without, the second piece keeps the first's
-    speed and each line is weighed by whether its way straight ahead at ``jv`` is blocked on
-    ``free`` (a turn at a wall). Log-likelihoods into ``ll``, points into ``px``, ``py``;
-    returns the largest."""
+    ``bins_a``, ``bins_b``; ``box (12,)`` the fractions of those ranges drawn in. With ``kind``
+    :data:`_STOP` the user stands at step ``jv + 1`` too; with :data:`_TURN` the second piece
+    keeps the first's speed and each line is weighed by whether its way straight ahead at ``jv``
+    is blocked on ``free`` (a turn at a wall); with :data:`_PACE` it keeps the first's heading (a
+    change of speed). Log-likelihoods into ``ll``, points into ``px``, ``py``; returns the
+    largest."""
     T = raster.shape[0]
     N = offsets.shape[0]
     bin_w = spacing / LINE_BINS
     n_a, n_b = range_a[1] - range_a[0] + 1, range_b[1] - range_b[0] + 1
     f = np.empty(6)
-    gap = 1 if stand else 0
+    gap = 1 if kind == _STOP else 0
     top = -np.inf
     for n in range(N):
         for d in range(6):
@@ -271,20 +298,21 @@ def _weigh_two_lines(
         sx = at[0] + (2.0 * f[0] - 1.0) * LINE_REACH * spacing
         sy = at[1] + (2.0 * f[1] - 1.0) * LINE_REACH * spacing
         ha = head[0] + (2.0 * f[2] - 1.0) * turn[0]
-        hb = head[1] + (2.0 * f[4] - 1.0) * turn[1]
+        hb = ha if kind == _PACE else head[1] + (2.0 * f[4] - 1.0) * turn[1]
         ka = range_a[0] + min(int(f[3] * n_a), n_a - 1)
         kb = range_b[0] + min(int(f[5] * n_b), n_b - 1)
         sa = bins_a[ka] * bin_w
-        sb = bins_b[kb] * bin_w if stand else sa
-        v = lp_a[ka] + (lp_b[kb] if stand else 0.0)
-        if not stand:
-            ahead = _blocked(sx, sy, sa * np.cos(ha), sa * np.sin(ha), free, origin, res)
-            v += TURN_BLOCKED if ahead else TURN_FREE
+        sb = sa if kind == _TURN else bins_b[kb] * bin_w
+        v = lp_a[ka] + (0.0 if kind == _TURN else lp_b[kb])
+        ax, ay = sa * np.cos(ha), sa * np.sin(ha)  # the pieces' steps
+        bx, by = sb * np.cos(hb), sb * np.sin(hb)
+        if kind == _TURN:
+            v += TURN_BLOCKED if _blocked(sx, sy, ax, ay, free, origin, res) else TURN_FREE
         for t in range(T):
             if t <= jv:
-                x, y = sx - (jv - t) * sa * np.cos(ha), sy - (jv - t) * sa * np.sin(ha)
+                x, y = sx - (jv - t) * ax, sy - (jv - t) * ay
             else:
-                x, y = sx + (t - jv - gap) * sb * np.cos(hb), sy + (t - jv - gap) * sb * np.sin(hb)
+                x, y = sx + (t - jv - gap) * bx, sy + (t - jv - gap) * by
             px[n, t], py[n, t] = x, y
             v += raster_at(raster, t, x, y, ox, oy, spacing)
         ll[n] = v
@@ -293,20 +321,62 @@ def _weigh_two_lines(
 
 
 @njit(cache=True, nogil=True)
+def _det3(m):  # pragma: no cover - compiled
+    return (
+        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
+    )
+
+
+@njit(cache=True, nogil=True)
+def _pace_step(tr):  # pragma: no cover - compiled
+    """The step ``1..T-2`` at which a walk along the track's least-squares line that changes
+    speed there fits the track best (by least squares along that line), and the change (its
+    speed after less before, the track's unit per step)."""
+    T = tr.shape[0]
+    vx, vy = fit_line(tr, 0, T - 1)[2:]
+    n = np.hypot(vx, vy)
+    along = ((tr[:, 0] - tr[0, 0]) * vx + (tr[:, 1] - tr[0, 1]) * vy) / max(n, 1e-12)
+    best, at, change = np.inf, -1, 0.0
+    a = np.empty((T, 3))
+    m, r = np.empty((3, 3)), np.empty(3)
+    for jv in range(1, T - 1):
+        for t in range(T):  # where the walk is at jv, its speed before and its speed after
+            a[t, 0], a[t, 1], a[t, 2] = 1.0, min(t - jv, 0), max(t - jv, 0)
+        for i in range(3):
+            r[i] = (a[:, i] * along).sum()
+            for k in range(3):
+                m[i, k] = (a[:, i] * a[:, k]).sum()
+        det = _det3(m)
+        p = np.empty(3)
+        for i in range(3):  # Cramer's rule
+            mi = m.copy()
+            mi[:, i] = r
+            p[i] = _det3(mi) / det
+        sse = ((a @ p - along) ** 2).sum()
+        if sse < best:
+            best, at, change = sse, jv, p[2] - p[1]
+    return at, change
+
+
+@njit(cache=True, nogil=True)
 def _family(
-    stand, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free, origin, res, buffers, mean
+    kind, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free, origin, res, buffers, mean, floor
 ):  # pragma: no cover - compiled
-    """Log evidence of the family of walks that stop (``stand``) or turn at step ``jv``, in the
-    straight lines' measure (the first heading by their density, the second by ``1 / 2 pi``);
-    its posterior mean into ``mean (T, 2)``, the lines of a stage into ``buffers`` (``ll (N,)``,
-    ``px``, ``py (N, T)``). ``-inf`` where no walk speed lies near the first
-    piece's."""
+    """Log evidence of the family of walks that stop, turn or change speed (``kind``) at step
+    ``jv``, in the straight lines' measure (the first heading by their density, the second by
+    ``1 / 2 pi``); its posterior mean into ``mean (T, 2)``, the lines of a stage into ``buffers``
+    (``ll (N,)``, ``px``, ``py (N, T)``). ``-inf`` where no walk speed lies near the first
+    piece's (or the second's, for a change of speed), or where the first stage's evidence lies
+    below ``floor``."""
     T = tr.shape[0]
     N = offsets.shape[0]
     ll, px, py = buffers
-    gap = 1 if stand else 0
+    pace = kind == _PACE
+    gap = 1 if kind == _STOP else 0
     before, after = jv >= 1, jv + gap <= T - 2  # pieces of two or more steps
-    if stand:
+    if kind == _STOP:
         at = np.array([0.5 * (tr[jv, 0] + tr[jv + 1, 0]), 0.5 * (tr[jv, 1] + tr[jv + 1, 1])])
     else:
         at = np.array([tr[jv, 0], tr[jv, 1]])
@@ -325,10 +395,18 @@ def _family(
     if after:
         vx, vy = fit_line(tr, jv + gap, T - 1)[2:]
         head[1] = np.arctan2(vy, vx)
-        if stand:
+        if kind == _STOP:
             bins_b, lp_b = prior_bins(restarts, 0, len(restarts) - 1)
+        elif pace:
+            bins_b, lp_b = speed_bins(speeds, np.hypot(vx, vy), TWO_LINE_WINDOW, spacing)
+            if not len(bins_b):
+                return -np.inf
         if T - 1 - jv - gap >= 3:
             turn[1] = LINE_TURN
+    if pace:  # one heading, about the whole track's
+        vx, vy = fit_line(tr, 0, T - 1)[2:]
+        head[0] = np.arctan2(vy, vx)
+        turn[0] = LINE_TURN
     box = np.array([0.0, 1.0] * 6)
     range_a = np.array([0, len(bins_a) - 1])
     range_b = np.array([0, len(bins_b) - 1])
@@ -338,7 +416,7 @@ def _family(
     mass_a, mass_b = np.zeros(len(bins_a)), np.zeros(len(bins_b))  # a stage's weight per speed bin
     for stage in range(TWO_LINE_STAGES):
         top = _weigh_two_lines(
-            stand, jv, at, head, turn, box, bins_a, lp_a, range_a, bins_b, lp_b, range_b, offsets, ox,
+            kind, jv, at, head, turn, box, bins_a, lp_a, range_a, bins_b, lp_b, range_b, offsets, ox,
             oy, raster, spacing, free, origin, res, ll, px, py,
         )  # fmt: skip
         last = stage + 1 == TWO_LINE_STAGES
@@ -369,16 +447,20 @@ def _family(
         if before:
             share *= (box[5] - box[4]) * n_a
             log_ev += np.log(turn[0] / LINE_TURN)
-        if after:
+        if pace:
+            share *= n_b
+        elif after:
             share *= (box[9] - box[8]) * n_b
             log_ev += np.log(turn[1] / np.pi)
         log_ev += np.log(share)
         if last:
             break
+        if log_ev < floor:
+            return -np.inf
         # the next stage's box: where the pieces meet and the headings of the pieces that have one,
         # and the speed bins that hold the posterior (as the straight lines' stages narrow theirs)
         for d in range(5):
-            if d == 3 or (d == 2 and not before) or (d == 4 and not after):
+            if d == 3 or (d == 2 and not before) or (d == 4 and (pace or not after)):
                 continue
             narrow_box(box, d, m1[d], m2[d], total, LINE_SPREAD, lines_apart)
         range_a[0], range_a[1] = narrow_bins(mass_a, range_a[0], range_a[1], total)
@@ -413,7 +495,12 @@ def _two_line_kernel(
             stop_at[t] = stops and step[t] < STOP_GATE * spacing
             if turns and 1 <= t and step[t - 1] >= _MIN_STEP * spacing:
                 turn_at[t] = _wall_ahead(tr, t, free, origin, res, spacing)
-        if not moving or not (stop_at.any() or turn_at.any()):  # a user who never moves, or no family
+        pace_at = -1  # where a fast walker's track changes speed, if it does
+        if np.median(step) > PACE_FAST * spacing:
+            at, change = _pace_step(tr)
+            if abs(change) > PACE_GATE * spacing:
+                pace_at = at
+        if not moving or not (stop_at.any() or turn_at.any() or pace_at >= 0):  # never moves, or no family
             continue
         # the straight lines' evidence summed over their speed bins (line_track's is per bin)
         vx, vy = fit_line(tr, 0, T - 1)[2:]
@@ -421,16 +508,17 @@ def _two_line_kernel(
         best = fill_raster(xy[b], lp[b], tr, spacing, raster, ox, oy)
         ev_line = delta[b] + best + np.log(n_bins)
         top = ev_line
-        ev = np.full((2, T - 1), -np.inf)
-        means = np.zeros((2, T - 1, T, 2))
-        for kind in range(2):
+        ev = np.full((3, T - 1), -np.inf)
+        means = np.zeros((3, T - 1, T, 2))
+        for kind in (_STOP, _TURN, _PACE):
+            bias = log_stop if kind == _STOP else PACE_BIAS if kind == _PACE else 0.0
             for jv in range(T - 1):
-                if (stop_at if kind == 0 else turn_at)[jv]:
+                if stop_at[jv] if kind == _STOP else turn_at[jv] if kind == _TURN else jv == pace_at:
                     e = _family(
-                        kind == 0, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free,
-                        origin, res, buffers, mean,
+                        kind, tr, jv, speeds, restarts, spacing, offsets, ox, oy, raster, free,
+                        origin, res, buffers, mean, top - FAMILY_PRUNE - bias,
                     )  # fmt: skip
-                    ev[kind, jv] = e + (log_stop if kind == 0 else 0.0)
+                    ev[kind, jv] = e + bias
                     means[kind, jv] = mean
                     top = max(top, ev[kind, jv])
         if top == -np.inf:
@@ -441,7 +529,7 @@ def _two_line_kernel(
             w = np.exp(ev_line - top)
             total += w
             acc += w * line[b]
-        for kind in range(2):
+        for kind in (_STOP, _TURN, _PACE):
             for jv in range(T - 1):
                 if ev[kind, jv] > -np.inf:
                     w = np.exp(ev[kind, jv] - top)

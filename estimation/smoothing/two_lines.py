@@ -29,8 +29,9 @@ two headings and the two speeds): each stage within the box and the speed bins t
 previous one's posterior. A family whose first stage lies :data:`FAMILY_PRUNE` below the walks
 weighed before it is dropped there. The straight lines and every family are mixed by their
 evidence, a stop weighed by the share of the training walkers' moving steps a stop followed
-(:func:`walk_restarts`) times ``exp(STOP_BIAS)``, a change of speed by ``exp(PACE_BIAS)``. The mixture's evidence takes the place of the
-straight lines' own ``delta`` (the same units: a user no family applies to keeps both).
+(:func:`walk_restarts`) times ``exp(STOP_BIAS)``, a change of speed by ``exp(PACE_BIAS)``. The
+mixture's evidence takes the place of the straight lines' own ``delta`` (the same units: a user
+no family applies to keeps both).
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ validation draws of :data:`PACE_FAST`, with two free lines for the fit: 0.15 / 0
 -0.8 / -0.8 / -0.6 % on the cyclists; families at every step instead of the best one alike at
 three times the cost, and at the best step's neighbours too no better."""
 PACE_BIAS = -2.0
-"""Nats added to the evidence of a family of walks that change speed (-1 to -4: within 0.1 %)."""
+"""Nats added to the evidence of a family of walks that change speed (-1 to -3: within 0.1 %)."""
 FAMILY_PRUNE = 40.0
 """Nats: a family whose first stage's evidence lies this far below the likeliest walk weighed
 before it is dropped (its weight ``exp(-40)`` of that walk's) instead of narrowed: the tracks
@@ -321,15 +322,6 @@ def _weigh_two_lines(
 
 
 @njit(cache=True, nogil=True)
-def _det3(m):  # pragma: no cover - compiled
-    return (
-        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
-    )
-
-
-@njit(cache=True, nogil=True)
 def _pace_step(tr):  # pragma: no cover - compiled
     """The step ``1..T-2`` at which a walk along the track's least-squares line that changes
     speed there fits the track best (by least squares along that line), and the change (its
@@ -348,12 +340,7 @@ def _pace_step(tr):  # pragma: no cover - compiled
             r[i] = (a[:, i] * along).sum()
             for k in range(3):
                 m[i, k] = (a[:, i] * a[:, k]).sum()
-        det = _det3(m)
-        p = np.empty(3)
-        for i in range(3):  # Cramer's rule
-            mi = m.copy()
-            mi[:, i] = r
-            p[i] = _det3(mi) / det
+        p = np.linalg.solve(m, r)
         sse = ((a @ p - along) ** 2).sum()
         if sse < best:
             best, at, change = sse, jv, p[2] - p[1]

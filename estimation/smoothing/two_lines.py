@@ -149,8 +149,8 @@ _STOP_PIECES2 = _offsets(STOP_PIECES, 2)
 TWO_STOP_POINTS = 256
 """First places to stand and middle pieces per stage of a family of two stops
 (:func:`_weigh_two_stops`), each weighed with every pair of :data:`TWO_STOP_PIECES` first and
-last pieces. Chosen on the draws of :data:`STOP_POINTS`: at 128 (or 16 pieces at 128) pedestrians
-0.1 % behind on most draws, at 32 pieces the same at 1.6 times the families' cost."""
+last pieces. Chosen on the draws of :data:`STOP_POINTS`: at 128 pedestrians 0.0 to 0.3 % behind;
+32 pieces the same as 16 at about twice the families' cost."""
 TWO_STOP_PIECES = 16
 """Pieces (a heading and a speed) before the first stop and after the second per stage of a
 family of two stops."""

@@ -1,4 +1,5 @@
-"""Walkers whose walk is two lines: a stop, a turn at a wall or a change of speed (estimation.smoothing.two_lines)."""
+"""Walkers whose walk is two lines (a stop, a turn at a wall or a change of speed) or three (two stops):
+estimation.smoothing.two_lines."""
 
 from __future__ import annotations
 

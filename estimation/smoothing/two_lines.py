@@ -841,6 +841,8 @@ def _two_line_kernel(
     stop_buffers = np.empty((M, K)), np.empty((M, K)), np.empty(M)
     M2 = points2.shape[0]
     two_buffers = np.empty((M2, pieces2.shape[0])), np.empty((M2, pieces2.shape[0])), np.empty(M2)
+    ev, ev2 = np.empty((3, T - 1)), np.empty((T - 1, T - 1))  # the families' evidence and means
+    means, means2 = np.empty((3, T - 1, T, 2)), np.empty((T - 1, T - 1, T, 2))
     side = 2 * TWO_LINE_HALF + 1
     raster = np.empty((T, side, side))
     ox, oy = np.empty(T), np.empty(T)
@@ -871,8 +873,7 @@ def _two_line_kernel(
         best = fill_raster(xy[b], lp[b], tr, spacing, raster, ox, oy)
         ev_line = delta[b] + best + np.log(n_bins)
         top = ev_line
-        ev = np.full((3, T - 1), -np.inf)
-        means = np.zeros((3, T - 1, T, 2))
+        ev[:] = -np.inf
         for kind in (_STOP, _TURN, _PACE):
             bias = log_stop if kind == _STOP else PACE_BIAS if kind == _PACE else 0.0
             for jv in range(T - 1):
@@ -884,8 +885,7 @@ def _two_line_kernel(
                     ev[kind, jv] = e + bias
                     means[kind, jv] = mean
                     top = max(top, ev[kind, jv])
-        ev2 = np.full((T - 1, T - 1), -np.inf)
-        means2 = np.zeros((T - 1, T - 1, T, 2))
+        ev2[:] = -np.inf
         if stops:
             for j1 in range(T - 1):
                 for j2 in range(j1 + 1, T - 1):

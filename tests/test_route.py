@@ -222,6 +222,21 @@ def test_users_off_the_streets_or_slow_are_left_alone():
         assert not on.any() and np.array_equal(track, cells)
 
 
+def test_a_user_crossing_a_street_where_its_fingerprints_place_it_keeps_its_track(monkeypatch):
+    """A fast user crossing the street at a shallow angle stays within ROUTE_REACH of it for
+    seven steps, and the route pass would put it on the street, 1.5 m from where it is; the
+    fingerprints put it 20 nats likelier on its own track (ROUTE_EVIDENCE)."""
+    net = StreetNetwork.from_segments(L_STREETS)
+    t = np.arange(7)
+    true = np.stack([20.0 + 8.3 * t, -2.5 + 0.5 * t], -1)[None]
+    xy, lp, cells = grid_candidates(true)
+    track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert not on.any() and np.array_equal(track, cells)
+    monkeypatch.setattr(route, "ROUTE_EVIDENCE", np.inf)
+    track, on = route_track(cells, xy, lp, net, _speeds(8.3), 0.05, 1.0, 5.0)
+    assert on.all() and np.linalg.norm(track - true, axis=-1).max() > 1.0
+
+
 def test_a_driver_whose_first_tracked_step_strays_off_the_street_is_smoothed_back_onto_it():
     """The smoother's first step (one fingerprint, no step before it) can stray 3 to 4 m off the
     street while the others are on it: the route still holds the driver (ROUTE_REACH)."""

@@ -18,6 +18,10 @@ far to that side as the track and nearer and farther, each weighed by how well i
 steps. A driver whose first or last step the smoother lost, a few metres along the street, is
 weighed again with wider windows at those steps and relocated where that moves one; one whose end
 step it carried straight on through a junction is weighed along each other street leaving it too.
+A route track is kept only where it moves no position far from the smoother's track
+(:data:`ROUTE_GATE`) and its steps' grid points are not much less likely than the track's
+(:data:`ROUTE_EVIDENCE`): a user who passes near a street without driving along it keeps the
+smoother's track.
 """
 
 from __future__ import annotations
@@ -103,6 +107,20 @@ not kept (a route that does not fit the driver: one tracked onto the wrong stree
 `default.zarr` network no gate and 4 m are alike (seen-area vehicles 0.1225 m), 1.5 m gives back
 an eighth of the gain (0.1391 m); on the demo's held-out street one wrong route is 9.4 m off without
 a gate."""
+ROUTE_EVIDENCE = 20.0
+"""Nats: a route track whose steps' grid points are this much less likely, summed over the steps,
+than the smoother's track's (each step's candidate nearest it, :func:`_candidate_loglik`) is
+not kept. A user off the streets whose track passes within :data:`ROUTE_REACH` of one for seven
+steps (the `events` and `smooth` vehicles of `benchmarks/foreign_motion.py`, 2 to 3 % of them) was
+put on the street, where its fingerprints do not place it: those users went from 2.0 to 2.8 and
+3.1 m (two draws). On
+`runs/tn-match-tracking` of the README (1000 per set, 6 dB, 7 steps), no gate / 40 / 20 / 10 /
+5 nats: `smooth` vehicles 0.951 / 0.926 / 0.923 / 0.920 / 0.920 m, `events` vehicles (two draws)
+0.814 and 0.799 / 0.797 and 0.788 / 0.792 and 0.783 / 0.792 and 0.781 / 0.792 and 0.778 m,
+`lanes` (two draws) 0.674 and 0.695 / 0.657 and 0.669 / 0.626 and 0.636 / 0.627 and 0.631 /
+0.628 and 0.635 m; our own seen-area and held-out vehicles 0.0805 and 0.1057 m down to 20 nats,
+0.0809 and 0.1057 at 10, 0.0812 and 0.1091 at 5; ours at 7.5 m/s 0.2228 m down to 40 nats, 0.2239
+at 20, 0.2304 at 5."""
 ROUTE_SIDE = 0.3
 """Grid spacings: a track whose mean signed distance from its route's centre line is larger
 keeps to a lane beside it, and is smoothed along lines beside the centre line
@@ -1023,5 +1041,10 @@ def route_track(
     # and so is an end step off the streets, left out of the route
     away[fast[lost[:, 0]], 0] = away[fast[lost[:, 1]], -1] = 0.0
     keep = ok & (away.max(1) <= ROUTE_GATE)
+    if keep.any():  # and the route's steps must read the fingerprints about as well as the track's
+        rows = np.flatnonzero(keep)
+        both = np.stack([track[rows], tracked[rows]], 2)  # (n, T, 2: route, track, 2)
+        ll = _candidate_loglik(xy[rows], lp[rows], both, spacing)
+        keep[rows] = (ll[..., 1] - ll[..., 0]).sum(1) <= ROUTE_EVIDENCE
     out[keep], on[keep] = track[keep], True
     return out, on

@@ -152,17 +152,16 @@ TWO_STOP_POINTS = 256
 last pieces. Chosen on the draws of :data:`STOP_POINTS`: at 128 pedestrians 0.0 to 0.3 % behind;
 32 pieces the same as 16 at about twice the families' cost."""
 TWO_STOP_PIECES = 16
+"""Pieces (a heading and a speed) before the first stop and after the second per stage of a
+family of two stops."""
 TWO_STOP_STEPS = 4
 """Two stops are weighed at pairs of the track's shortest steps, this many of them: a slow
 walker's track has many steps shorter than :data:`STOP_GATE`, and pairs of all of them cost it
 75 ms at 30 steps (12 ms before the two stops), 18 ms with these. On the draws of
 :data:`STOP_POINTS` (7 steps) within 0.05 % of every pair; 3: pedestrians up to 0.05 % behind on
 the README's draw."""
-"""Pieces (a heading and a speed) before the first stop and after the second per stage of a
-family of two stops."""
 _TWO_STOP_POINTS8 = _offsets(TWO_STOP_POINTS, 8)
 _TWO_STOP_PIECES2 = _offsets(TWO_STOP_PIECES, 2)
-_TWO_STOP_POINTS8 = _offsets(TWO_STOP_POINTS, 8)
 
 _STOP, _TURN, _PACE = 0, 1, 2  # the kinds of family
 

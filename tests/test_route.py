@@ -225,7 +225,7 @@ def test_users_off_the_streets_or_slow_are_left_alone():
 def test_a_user_crossing_a_street_where_its_fingerprints_place_it_keeps_its_track(monkeypatch):
     """A fast user crossing the street at a shallow angle stays within ROUTE_REACH of it for
     seven steps, and the route pass would put it on the street, 1.5 m from where it is; the
-    fingerprints put it 20 nats likelier on its own track (ROUTE_EVIDENCE)."""
+    fingerprints put it more than 20 nats likelier on its own track (ROUTE_EVIDENCE)."""
     net = StreetNetwork.from_segments(L_STREETS)
     t = np.arange(7)
     true = np.stack([20.0 + 8.3 * t, -2.5 + 0.5 * t], -1)[None]

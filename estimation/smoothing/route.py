@@ -113,9 +113,8 @@ than the smoother's track's (each step's candidate nearest it, :func:`_candidate
 not kept. A user off the streets whose track passes within :data:`ROUTE_REACH` of one for seven
 steps (the `events` and `smooth` vehicles of `benchmarks/foreign_motion.py`, 2 to 3 % of them) was
 put on the street, where its fingerprints do not place it: those users went from 2.0 to 2.8 and
-3.1 m (two draws). On
-`runs/tn-match-tracking` of the README (1000 per set, 6 dB, 7 steps), no gate / 40 / 20 / 10 /
-5 nats: `smooth` vehicles 0.951 / 0.926 / 0.923 / 0.920 / 0.920 m, `events` vehicles (two draws)
+3.1 m (two draws). On `runs/tn-match-tracking` of the README (1000 per set, 6 dB, 7 steps), no
+gate / 40 / 20 / 10 / 5 nats: `smooth` vehicles 0.951 / 0.926 / 0.923 / 0.920 / 0.920 m, `events` vehicles (two draws)
 0.814 and 0.799 / 0.797 and 0.788 / 0.792 and 0.783 / 0.792 and 0.781 / 0.792 and 0.778 m,
 `lanes` (two draws) 0.674 and 0.695 / 0.657 and 0.669 / 0.626 and 0.636 / 0.627 and 0.631 /
 0.628 and 0.635 m; our own seen-area and held-out vehicles 0.0805 and 0.1057 m down to 20 nats,

@@ -33,7 +33,7 @@ from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTa
 from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
 from .smoothing.route import route_track
 from .smoothing.two_lines import FreeRaster, free_raster
-from .smoothing.walks import walk_track
+from .smoothing.walks import WALK_FREE_PRIOR, walk_track
 
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
@@ -273,8 +273,9 @@ class Estimator(nn.Module):
         (:func:`~estimation.smoothing.two_lines.two_line_track`): a turn where the attached grid's
         free space ends ahead, and a stop where the model measured how its walkers set off after
         one; a fast walker's searched again around its likeliest candidates near its track
-        (:func:`~estimation.smoothing.walks.walk_track`); each by how well the lines explain its
-        steps, before they are returned (default
+        (:func:`~estimation.smoothing.walks.walk_track`); and all of it again at speeds of
+        their own (a flat speed prior, its share :data:`~estimation.smoothing.walks.WALK_FREE_PRIOR`);
+        each by how well the lines explain its steps, before they are returned (default
         True; only where the model measured those speeds). :meth:`OnlineTracker.update`'s
         current positions do not.
     """
@@ -621,7 +622,7 @@ class Estimator(nn.Module):
         # models saved before the restart speeds were measured weigh no stops
         line, delta = walk_track(
             t[walk], xy, lp, fine.walk_speeds.numpy(), step, fine.walk_restarts.numpy(),
-            float(fine.walk_stop), self._free_space(),
+            float(fine.walk_stop), self._free_space(), WALK_FREE_PRIOR,
         )  # fmt: skip
         w = line_weight(delta)[:, None, None]
         out = tracked.clone()

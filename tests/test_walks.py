@@ -7,7 +7,7 @@ import numpy as np
 from estimation.smoothing import walks
 from estimation.smoothing.line import line_track, line_weight
 from estimation.smoothing.two_lines import two_line_track
-from estimation.smoothing.walks import near_best, walk_track
+from estimation.smoothing.walks import WALK_FREE_PRIOR, free_speeds, near_best, walk_track
 from tests.helpers.candidates import grid_candidates
 from tests.test_line import _speeds, _walkers
 
@@ -65,3 +65,34 @@ def test_a_slow_walker_is_searched_once(monkeypatch):
     monkeypatch.setattr(walks, "WALK_FAST", 0.5)
     again, _ = walk_track(*inputs, speeds, 1.0)
     assert np.linalg.norm(again - true, axis=-1).mean() < 0.5 * np.linalg.norm(first - true, axis=-1).mean()
+
+
+def test_walkers_at_speeds_of_their_own_are_found_with_the_flat_prior_beside_the_measured_one():
+    # the training walkers kept 1.1, 1.4 and 1.7 m per step; walkers at 2.2 or 0.8 find no line at
+    # those speeds (none weighs anything), so their tracks stay at the cells; with the flat prior
+    # beside the measured one they are read well inside the cells
+    speeds = _speeds(1.1, 1.4, 1.7)
+
+    def mixed(true, free_prior):
+        xy, lp, cells = grid_candidates(true, radius=2)
+        track, delta = walk_track(cells, xy, lp, speeds, 1.0, free_prior=free_prior)
+        w = line_weight(delta)[:, None, None]
+        return np.linalg.norm(w * track + (1 - w) * cells - true, axis=-1).mean(), cells
+
+    for step, seed in ((2.2, 3), (0.8, 4)):
+        true = _walkers(20, step, seed=seed)
+        alone, cells = mixed(true, 0.0)
+        both, _ = mixed(true, WALK_FREE_PRIOR)
+        cell_err = np.linalg.norm(cells - true, axis=-1).mean()
+        assert alone > 0.95 * cell_err and both < 0.75 * cell_err
+    # walkers at a measured speed keep the measured prior's walk
+    true = _walkers(20, 1.4, seed=5)
+    alone, cells = mixed(true, 0.0)
+    both, _ = mixed(true, WALK_FREE_PRIOR)
+    assert both < 1.05 * alone < 0.5 * np.linalg.norm(cells - true, axis=-1).mean()
+
+
+def test_the_flat_prior_spreads_over_every_speed_a_line_is_weighed_at():
+    p = free_speeds(np.zeros(120))
+    assert p.shape == (120,) and np.isclose(p.sum(), 1.0)
+    assert (p[:10] == 0).all() and np.allclose(p[10:], p[10])  # from half a spacing per step

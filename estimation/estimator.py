@@ -22,7 +22,7 @@ from ._stamps import same_stamp, stamp
 from .checkpoint import MODEL_FORMAT, load_checkpoint, save_checkpoint
 from .data import Normaliser, SequenceSet
 from .errors import EstimationError
-from .matching import FingerprintMatcher
+from .matching import FingerprintMatcher, blank_steps
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .noise import check_bits
@@ -521,7 +521,10 @@ class Estimator(nn.Module):
         if not self.uses_grid:
             return bits
         xy, score = self.search(bits) if found is None else found
-        return self.candidate_filter(candidates=candidates, mode_chain=mode_chain).run(xy, score).smooth()
+        blank = None if bits is None else blank_steps(bits)
+        return (
+            self.candidate_filter(candidates=candidates, mode_chain=mode_chain).run(xy, score, blank).smooth()
+        )
 
     def tracker(self) -> OnlineTracker:
         """An online tracker of a batch of users: :meth:`OnlineTracker.update` takes each new
@@ -774,7 +777,7 @@ class OnlineTracker:
         if self.filter is None:
             return self.est.predict(torch.stack(self._bits, 1).float())[:, -1].double().numpy()
         xy, score, self._refs = self.est._search(bits[:, None].float(), self._refs)
-        now = self.filter.update(xy[:, 0], score[:, 0])
+        now = self.filter.update(xy[:, 0], score[:, 0], blank_steps(bits[:, None])[:, 0])
         f, T = self.filter, self.steps
         if T < 2 or not self.est.route_tracking:
             return now

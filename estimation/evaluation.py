@@ -23,6 +23,7 @@ from .classical import KnnKalman, MatchSmoother
 from .data import SequenceSet
 from .errors import EstimationError
 from .estimator import Estimator
+from .matching import blank_steps
 from .metrics import summarise_by_kind, trajectory_rmse
 from .names import CLASSICAL_NAMES, Task
 from .noise import noisy_bits
@@ -173,7 +174,7 @@ class NetworkMethod:
             return _per_prefix(bits, lengths, lambda b: b, lambda b, L: self._predict(b[:, :L].float()))
 
         def forward(b: torch.Tensor) -> CandidateFilter:
-            return self.est.candidate_filter().run(*self.est.search(b.float()))
+            return self.est.candidate_filter().run(*self.est.search(b.float()), blank_steps(b))
 
         return _shared_prefixes(
             bits,

@@ -18,7 +18,16 @@ from .errors import EstimationError
 from .noise import check_bits, log_detection_probabilities
 from .tile_search import TileIndex
 
-__all__ = ["FingerprintMatcher", "GUIDE"]
+
+def blank_steps(bits: torch.Tensor | np.ndarray) -> np.ndarray:
+    """``(B, T)`` bool: the steps of ``bits (B, T, M, N_s)`` (a tensor or array of any dtype) with
+    no bit set, where a user is out of coverage: every grid point a fingerprint might come from
+    alike weak reads them alike."""
+    b = torch.as_tensor(bits)
+    return (b.reshape(b.shape[0], b.shape[1], -1) == 0).all(-1).numpy()
+
+
+__all__ = ["FingerprintMatcher", "GUIDE", "blank_steps"]
 
 # Selection bonus of :meth:`FingerprintMatcher.track_candidates`: odds A near the predicted
 # position, and its spread s in metres, plus a share of the last step's length. With A = 50 (at

@@ -570,6 +570,55 @@ def test_vague_steps_far_off_the_track_go_onto_it():
     np.testing.assert_array_equal(out[3:], pos[3:])
 
 
+def test_steps_after_blank_first_steps_keep_the_candidates_their_fingerprints_favour():
+    """A first fingerprint with no bit set, all its candidates 150 m off (any of thousands of alike
+    points), then informative ones whose candidates hold both points near the user and, less
+    likely, points near those first ones. The filter keeps half of them: walks from the first
+    step's points keep the far ones at every step, and the track stays 150 m off, unless the
+    filter is told that the first step was blank."""
+    B, T, S, k = 2, 6, 20, 10
+    g = np.random.default_rng(4)
+    true = np.stack([np.stack([1.4 * np.arange(T), 0.5 * np.arange(T)], -1)] * B)
+    far = true[:, :1] + (150.0, 130.0)
+    near = true[:, :, None] + g.normal(0, 1.0, (B, T, S // 2, 2))
+    away = far[:, :, None] + g.normal(0, 1.0, (B, T, S // 2, 2))
+    xy = np.concatenate([near, away], 2)
+    score = np.concatenate(
+        [-np.square(near - true[:, :, None]).sum(-1), -8.0 - np.square(away - far[:, :, None]).sum(-1)], 2
+    )
+    xy[:, 0] = far[:, 0, None] + g.normal(0, 1.0, (B, S, 2))  # the blank first step
+    score[:, 0] = -0.1 * np.arange(S)
+    xy, score = torch.from_numpy(xy).float(), torch.from_numpy(score).float()
+    blank = np.zeros((B, T), bool)
+    blank[:, 0] = True
+
+    def kept_and_error(blank):
+        kxy, _, fine = CandidateFilter(MOTION, k=k, beam=50).run(xy, score, blank).smooth()
+        kept = np.linalg.norm(kxy[:, 1:].numpy() - true[:, 1:, None], axis=-1).min(-1)
+        return kept, np.linalg.norm(fine.numpy() - true, axis=-1).max()
+
+    kept, err = kept_and_error(blank)
+    assert (kept < 2.0).all() and err < 3.0  # a point near the user kept at every step
+    kept, err = kept_and_error(None)
+    assert (kept > 100.0).all() and err > 100.0
+    # a blank step after an informative one changes nothing: the walks know where to look
+    late = np.zeros((B, T), bool)
+    late[:, 2] = True
+    a = CandidateFilter(MOTION, k=k, beam=50).run(xy[:, 1:], score[:, 1:], late[:, 1:]).smooth()[2]
+    b = CandidateFilter(MOTION, k=k, beam=50).run(xy[:, 1:], score[:, 1:]).smooth()[2]
+    torch.testing.assert_close(a, b, atol=0, rtol=0)
+
+
+def test_blank_steps_are_the_fingerprints_with_no_bit_set():
+    from estimation.matching import blank_steps
+
+    bits = np.zeros((2, 3, 4, 5), np.uint8)
+    bits[0, 1, 2, 3] = 1
+    bits[1, :, 0, 0] = 1
+    np.testing.assert_array_equal(blank_steps(bits), [[True, False, True], [False, False, False]])
+    np.testing.assert_array_equal(blank_steps(torch.from_numpy(bits).float()), blank_steps(bits))
+
+
 def test_the_filter_puts_a_vague_first_step_where_the_steps_after_it_lead():
     """An empty first fingerprint: every candidate alike likely and all 200 m away (the matcher
     had no step before to look near). The smoothed estimate of that step is the track's

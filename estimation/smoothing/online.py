@@ -431,6 +431,7 @@ class CandidateFilter:
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), -1).reshape(-1, 2)
         self._inv_two_s2 = np.array([0.5 / s**2 for s in STEP_SIGMAS])
         self._rw: np.ndarray | None = None  # (B, k, n_s) filtered random-walk posteriors
+        self._blank: np.ndarray | None = None  # (B,) bool: every fingerprint so far had no bit set
         self.positions: list[np.ndarray] = []  # (B, 2) filtered estimate of every step
         self.vague: list[np.ndarray] = []  # (B,) bool per step: its fingerprint says little
 
@@ -458,10 +459,13 @@ class CandidateFilter:
             )
         return w
 
-    def update(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> np.ndarray:
+    def update(
+        self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray, blank: np.ndarray | None = None
+    ) -> np.ndarray:
         """Add one step: the matcher's candidates ``xy (B, S, 2)`` metres and their
         log-likelihoods ``score (B, S)`` (as :meth:`FingerprintMatcher.track_candidates` gives
-        them). Returns the users' current positions ``(B, 2)`` float64 metres."""
+        them), and optionally ``blank (B,)`` bool, whose fingerprints had no bit set. Returns the
+        users' current positions ``(B, 2)`` float64 metres."""
         xy = np.asarray(xy, dtype=np.float64)
         score = np.asarray(score, dtype=np.float64)
         lp = _log_softmax(score)
@@ -471,6 +475,16 @@ class CandidateFilter:
             rw = np.repeat(lp[..., None], len(self._inv_two_s2), -1)
         else:
             rw = batch_map(rw_step, 4, self.cells.xy.step(-1), self._rw, xy, lp, self._inv_two_s2)
+            # A fingerprint with no bit set has thousands of equally likely points, and the kept
+            # ones are any of them: walks from them would keep this step's candidates near those,
+            # so a user whose fingerprints then place it well would lose every point near it. After
+            # nothing but such steps, a step keeps its candidates as a first step does.
+            if self._blank is not None:
+                rw[self._blank] = lp[self._blank, :, None]
+        if self._rw is None:
+            self._blank = None if blank is None else np.array(blank, dtype=bool)
+        elif self._blank is not None:
+            self._blank = None if blank is None else self._blank & np.asarray(blank, dtype=bool)
         # A stable sort keeps ties in the matcher's order, so the result does not depend on the batch.
         keep = np.argsort(-rw.max(-1), axis=1, kind="stable")[:, : self.k]
         kxy = np.take_along_axis(xy, keep[..., None], 1)
@@ -490,11 +504,13 @@ class CandidateFilter:
         self.vague.append(score.max(1) - score.min(1) < VAGUE_SPAN)
         return pos
 
-    def run(self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray) -> CandidateFilter:
-        """:meth:`update` with every step of ``xy (B, T, S, 2)`` metres and ``score (B, T, S)``
-        in turn; returns ``self``."""
+    def run(
+        self, xy: torch.Tensor | np.ndarray, score: torch.Tensor | np.ndarray, blank: np.ndarray | None = None
+    ) -> CandidateFilter:
+        """:meth:`update` with every step of ``xy (B, T, S, 2)`` metres, ``score (B, T, S)`` and
+        ``blank (B, T)`` (optional) in turn; returns ``self``."""
         for t in range(xy.shape[1]):
-            self.update(xy[:, t], score[:, t])
+            self.update(xy[:, t], score[:, t], None if blank is None else blank[:, t])
         return self
 
     def _subcells(

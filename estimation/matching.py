@@ -24,7 +24,7 @@ def blank_steps(bits: torch.Tensor | np.ndarray) -> np.ndarray:
     no bit set, where a user is out of coverage: every grid point a fingerprint might come from
     alike weak reads them alike."""
     b = torch.as_tensor(bits)
-    return (b.reshape(b.shape[0], b.shape[1], -1) == 0).all(-1).numpy()
+    return (b.flatten(2) == 0).all(-1).numpy()
 
 
 __all__ = ["FingerprintMatcher", "GUIDE", "blank_steps"]

@@ -601,12 +601,16 @@ def test_steps_after_blank_first_steps_keep_the_candidates_their_fingerprints_fa
     assert (kept < 2.0).all() and err < 3.0  # a point near the user kept at every step
     kept, err = kept_and_error(None)
     assert (kept > 100.0).all() and err > 100.0
-    # a blank step after an informative one changes nothing: the walks know where to look
+    # a blank step after an informative one changes nothing: the walks know where to look, even
+    # where the next step's likelihoods alone would keep the far points
     late = np.zeros((B, T), bool)
     late[:, 2] = True
-    a = CandidateFilter(MOTION, k=k, beam=50).run(xy[:, 1:], score[:, 1:], late[:, 1:]).smooth()[2]
-    b = CandidateFilter(MOTION, k=k, beam=50).run(xy[:, 1:], score[:, 1:]).smooth()[2]
+    swapped = score.clone()
+    swapped[:, 3, : S // 2] -= 20.0
+    a = CandidateFilter(MOTION, k=k, beam=50).run(xy[:, 1:], swapped[:, 1:], late[:, 1:]).smooth()[2]
+    b = CandidateFilter(MOTION, k=k, beam=50).run(xy[:, 1:], swapped[:, 1:]).smooth()[2]
     torch.testing.assert_close(a, b, atol=0, rtol=0)
+    assert np.linalg.norm(a.numpy() - true[:, 1:], axis=-1).max() < 3.0
 
 
 def test_blank_steps_are_the_fingerprints_with_no_bit_set():

@@ -30,7 +30,13 @@ from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.line import LINE_MIN_STEPS, line_weight
 from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
-from .smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, CandidateFilter
+from .smoothing.online import (
+    ALTERNATIVE_PRIOR,
+    FILTER_CANDIDATES,
+    MODE_CHAIN,
+    WALKER_SPEED_PRIOR,
+    CandidateFilter,
+)
 from .smoothing.route import route_track
 from .smoothing.two_lines import FreeRaster, free_raster
 from .smoothing.walks import WALK_FREE_PRIOR, walk_track
@@ -411,14 +417,15 @@ class Estimator(nn.Module):
             )
         wanted = FILTER_CANDIDATES if candidates is None else int(candidates)
         k, step = min(max(net.k, wanted), net.search), float(net.grid_step)
-        alternative, fine_weighed, steady = (
+        alternative, priors, fine_weighed, skips = (
             self._alternative_motion()
             if (self.robust_motion if robust is None else robust)
-            else (None, (), ())
+            else (None, ALTERNATIVE_PRIOR, (), ())
         )
         return CandidateFilter(
-            *self._lane_motion(), step, k, alternative=alternative, fine_weighed=fine_weighed,
-            memory=net.memory, memory_skips=steady, mode_chain=MODE_CHAIN if mode_chain is None else mode_chain,
+            *self._lane_motion(), step, k, alternative=alternative, alternative_prior=priors,
+            fine_weighed=fine_weighed, memory=net.memory, memory_skips=skips,
+            mode_chain=MODE_CHAIN if mode_chain is None else mode_chain,
         )  # fmt: skip
 
     def _tables_stamp(self, *extra: Any) -> tuple:
@@ -449,18 +456,33 @@ class Estimator(nn.Module):
 
     def _alternative_motion(
         self,
-    ) -> tuple[list[tuple[MotionTable, MotionTable | None]], tuple[int, ...], tuple[int, ...]]:
+    ) -> tuple[
+        list[tuple[MotionTable, MotionTable | None]],
+        float | tuple[float, ...],
+        tuple[int, ...],
+        tuple[int, ...],
+    ]:
         """The alternatives the filter weighs the measured tables against: their broadened
         copies, the tables for steady users at other speeds (:meth:`_steady_motion`) and those of
-        one kind alone (:meth:`_kind_motion`) where the model has them; the indices of those
-        the filter tells from the measured tables by their sub-cell evidence
-        (``CandidateFilter(fine_weighed=...)``); and that of the steady users at other speeds,
-        whose paths the acceleration memory does not weigh (``CandidateFilter(memory_skips=...)``)."""
+        one kind alone (:meth:`_kind_motion`) where the model has them, sharing
+        :data:`~estimation.smoothing.online.ALTERNATIVE_PRIOR`, and the walkers' tables at other
+        speeds where it has them, at :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR`;
+        their prior (one probability shared evenly where the walkers' tables are not there, else
+        one per alternative); the indices of those the filter tells from the measured tables by their
+        sub-cell evidence (``CandidateFilter(fine_weighed=...)``); and those of the tables
+        measured at speeds the training users did not keep, whose paths the acceleration memory
+        does not weigh (``CandidateFilter(memory_skips=...)``)."""
+        net = self.net
         steady = self._steady_motion()
-        kind = [self._kind_motion()] if bool(self.net.motion_kind.fitted) else []
-        if steady is None:
-            return [self._broadened_motion(), *kind], (), ()
-        return [self._broadened_motion(), steady, *kind], ((1,) if self._scaled_fine() else ()), (1,)
+        kind = [self._kind_motion()] if bool(net.motion_kind.fitted) else []
+        alts = [self._broadened_motion(), *([] if steady is None else [steady]), *kind]
+        fine_weighed = (1,) if steady is not None and self._scaled_fine() else ()
+        skips = (1,) if steady is not None else ()
+        if not bool(net.motion_walk.fitted):
+            return alts, ALTERNATIVE_PRIOR, fine_weighed, skips
+        priors = (ALTERNATIVE_PRIOR / len(alts),) * len(alts) + (WALKER_SPEED_PRIOR,)
+        alts.append((net.motion_walk, net.motion_walk_fine))
+        return alts, priors, fine_weighed, skips + (len(alts) - 1,)
 
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The tables measured on the training users of one kind alone

@@ -32,8 +32,15 @@ from estimation.smoothing.hmm import (
     velocity_posterior,
 )
 from estimation.smoothing.memory import MotionMemory
-from estimation.smoothing.motion import MixtureMotion, MotionTable, snap_to_lattice, speed_scaled
-from estimation.smoothing.online import FILTER_CANDIDATES, MODE_CHAIN
+from estimation.smoothing.motion import (
+    WALK_COPIES,
+    WALK_SCALES,
+    MixtureMotion,
+    MotionTable,
+    snap_to_lattice,
+    speed_scaled,
+)
+from estimation.smoothing.online import FILTER_CANDIDATES, MODE_CHAIN, WALKER_SPEED_PRIOR
 from estimation.synthetic import toy_sequence_set
 from estimation.training import _inputs as training_inputs
 from mmwsim.trajectories.motion import KINDS
@@ -613,9 +620,41 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert torch.equal(est.net.motion.log_accel_table, expect.log_accel_table)
     assert torch.equal(est.net.motion.log_place, expect.log_place)
     # (the measured motion alone: the robust filter also weighs in its broadened copy, test_online,
-    # and the tables of steady users at other speeds, test_speed_scaled)
+    # the tables of steady users at other speeds and the walkers' at other speeds, test_speed_scaled)
     found = est.search(bits[:4])
+    assert est.candidate_filter().run(*found).model_weights().shape == (4, 4)
+    # the walkers' tables: the training pedestrians at other speeds, no place table; the last
+    # hypothesis, at its own prior beside the others' shared one, its paths not weighed by the
+    # acceleration memory (measured at the training speeds)
+    walkers = tr.positions[tr.kind == KINDS.index("pedestrian")]
+    u = speed_scaled(walkers - lo, copies=WALK_COPIES, ranges=WALK_SCALES)
+    assert torch.equal(
+        est.net.motion_walk.log_accel_table, MotionTable().fit(lo + np.rint(u)).log_accel_table
+    )
+    walk_fine = MotionTable.lattice().fit(snap_to_lattice(u))
+    assert torch.equal(est.net.motion_walk_fine.log_accel_table, walk_fine.log_accel_table)
+    assert not est.net.motion_walk.has_place and not est.net.motion_walk_fine.has_place
+    f = est.candidate_filter()
+    assert f._models[-1].cells.m is motion_arrays(est.net.motion_walk) and not f._models[-1].remembers
+    np.testing.assert_allclose(
+        np.exp(f._log_prior), [0.5 - WALKER_SPEED_PRIOR, 0.25, 0.25, WALKER_SPEED_PRIOR]
+    )
+    # fewer walkers than KIND_TABLE_MIN measure none; nor does a model saved before they existed
+    for other in ("vehicle", "hybrid"):  # cyclists are no walkers here (WALKER_KINDS)
+        est.net.fit_walker_speeds(tr.positions, tr.grid_xy, np.full(len(tr.kind), KINDS.index(other)))
+        assert not bool(est.net.motion_walk.fitted)
     assert est.candidate_filter().run(*found).model_weights().shape == (4, 3)
+    np.testing.assert_allclose(np.exp(est.candidate_filter()._log_prior), [0.5, 0.25, 0.25])
+    est.net.fit_walker_speeds(tr.positions, tr.grid_xy, tr.kind)
+    assert torch.equal(est.net.motion_walk_fine.log_accel_table, walk_fine.log_accel_table)
+    with pytest.raises(ValueError, match="codes"):
+        est.net.fit_walker_speeds(tr.positions, tr.grid_xy, tr.kind[:-1])
+    saved = torch.load(tmp_path / "run" / "model.pt", weights_only=True)
+    saved["state_dict"] = {k: v for k, v in saved["state_dict"].items() if not k.startswith("motion_walk")}
+    torch.save(saved, tmp_path / "before.pt")
+    before = Estimator.load(tmp_path / "before.pt").attach(va)
+    assert not bool(before.net.motion_walk.fitted)
+    assert before.candidate_filter().run(*found).model_weights().shape == (4, 3)
     # the broadened copies are made once per set of tables, not once per filter
     broad = est._broadened_motion()
     assert est._broadened_motion() is broad
@@ -715,13 +754,13 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     assert torch.equal(est.net.motion_kind_fine.log_accel_table, fine_kind.log_accel_table)
     est._steady = est._broadened = None
     f = est.candidate_filter()
-    assert f._fine_group == [0, 2] and f.run(*found).model_weights().shape == (4, 4)
+    assert f._fine_group == [0, 2] and f.run(*found).model_weights().shape == (4, 5)
     assert f._models[3].cells.m is motion_arrays(est.net.motion_kind)
     # saved and loaded with the weights; a model saved before they existed has them unfitted
     est.save(tmp_path / "kind.pt")
     loaded = Estimator.load(tmp_path / "kind.pt").attach(va)
     assert torch.equal(loaded.net.motion_kind_fine.log_accel_table, fine_kind.log_accel_table)
-    assert loaded.candidate_filter().run(*found).model_weights().shape == (4, 4)
+    assert loaded.candidate_filter().run(*found).model_weights().shape == (4, 5)
     kind[0] = KINDS.index("pedestrian")
     est.net.fit_motion(tr.positions, tr.grid_xy, tr.index, kind=kind)
     assert not bool(est.net.motion_kind.fitted) and not bool(est.net.motion_kind_fine.fitted)

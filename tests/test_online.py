@@ -498,6 +498,16 @@ def test_an_alternative_that_is_the_same_model_changes_nothing():
     np.testing.assert_allclose(three.model_weights(), np.tile([0.7, 0.15, 0.15], (3, 1)), atol=1e-12)
     for a, b in zip(one.smooth(), three.smooth(), strict=True):
         assert torch.allclose(a, b, atol=1e-5)
+    # or one prior each; the measured model has the rest
+    each = CandidateFilter(
+        MOTION, k=8, beam=30, alternative=[(MOTION, None), (MOTION, None)], alternative_prior=(0.2, 0.06)
+    ).run(xy, score)
+    np.testing.assert_allclose(each.model_weights(), np.tile([0.74, 0.2, 0.06], (3, 1)), atol=1e-12)
+    for a, b in zip(one.smooth(), each.smooth(), strict=True):
+        assert torch.allclose(a, b, atol=1e-5)
+    for bad in ((0.5, 0.5), (0.2,), (0.2, 0.0), (0.2, float("nan")), (0.3, -0.1)):
+        with pytest.raises(ValueError, match="priors"):
+            CandidateFilter(MOTION, alternative=[(MOTION, None), (MOTION, None)], alternative_prior=bad)
 
 
 def _turning_tracks(n, length, seed):

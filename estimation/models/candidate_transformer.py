@@ -38,11 +38,19 @@ from mmwsim.trajectories.motion import KINDS
 from ..smoothing.forecast import extrapolate
 from ..smoothing.hmm import STEP_SIGMAS, cell_mean, subcell_mean
 from ..smoothing.memory import MotionMemory
-from ..smoothing.motion import PLACE_SPEED, SUBCELLS, MotionTable, snap_to_lattice, speed_scaled
+from ..smoothing.motion import (
+    PLACE_SPEED,
+    SUBCELLS,
+    WALK_COPIES,
+    WALK_SCALES,
+    MotionTable,
+    snap_to_lattice,
+    speed_scaled,
+)
 from .embedding import sinusoidal_encoding
 from .encoder import encode
 
-__all__ = ["KIND_TABLE", "KIND_TABLE_MIN", "NET_REACH", "CandidateTransformer"]
+__all__ = ["KIND_TABLE", "KIND_TABLE_MIN", "NET_REACH", "WALKER_KINDS", "CandidateTransformer"]
 
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 # The kind whose own motion tables the filter weighs as one more alternative: cyclists, whose
@@ -51,6 +59,12 @@ _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 # 0.5 to 1.6 % for two more hypotheses, each one more beam per stage).
 KIND_TABLE = "hybrid"
 KIND_TABLE_MIN = 20  # trajectories of that kind below which its tables are not measured
+# The kinds whose trajectories at other speeds make the walkers' alternative tables
+# (CandidateTransformer.fit_walker_speeds): people on foot keep their paths' shapes at other paces,
+# which the tables measured at the training pedestrians' speeds (1.1 to 1.7 m/s) mark as speeding
+# up or slowing down at every step. Not cyclists: scaled up to 6 m/s they explained a vehicle at
+# 5.3 m per step by a track 8 m off it, and our own test vehicles' error rose by 3.7 %.
+WALKER_KINDS = ("pedestrian",)
 NET_REACH = 10.0
 """Grid spacings the network may move a step of the classical estimate by. Its moves are local
 corrections (on 34 356 steps of validation users of ``default.zarr``, 99.9 % under 1.22 m and 6
@@ -133,6 +147,11 @@ class CandidateTransformer(nn.Module):
         # they existed, or trained without that kind).
         self.motion_kind = MotionTable()
         self.motion_kind_fine = MotionTable.lattice()
+        # Both tables measured on the training walkers at other speeds (fit_walker_speeds): the
+        # filter's alternative for users on foot at paces of their own (unfitted in models saved
+        # before they existed, or trained without walkers).
+        self.motion_walk = MotionTable()
+        self.motion_walk_fine = MotionTable.lattice()
         # How an acceleration on the lattice depends on the one or two before it, measured on the same
         # trajectories (none in models saved before it existed).
         self.memory = MotionMemory()
@@ -160,9 +179,10 @@ class CandidateTransformer(nn.Module):
         :func:`~estimation.smoothing.motion.speed_scaled` copies of them (the same place table).
         With the trajectories' ``kind (n,)`` codes (``mmwsim.trajectories.KINDS``), both tables
         again on the users of :data:`KIND_TABLE` alone, without a place table, where there are at
-        least :data:`KIND_TABLE_MIN` of them (else they stay unfitted). With ``L >= 4``, the
-        acceleration memory (:class:`~estimation.smoothing.memory.MotionMemory`) on the lattice
-        positions too. Returns ``self``."""
+        least :data:`KIND_TABLE_MIN` of them (else they stay unfitted), and the walkers' tables at
+        other speeds (:meth:`fit_walker_speeds`). With ``L >= 4``, the acceleration memory
+        (:class:`~estimation.smoothing.memory.MotionMemory`) on the lattice positions too.
+        Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
         mine = None if kind is None else np.asarray(kind).reshape(-1) == KINDS.index(KIND_TABLE)
@@ -191,7 +211,35 @@ class CandidateTransformer(nn.Module):
         if mine is not None and mine.sum() >= KIND_TABLE_MIN:
             self.motion_kind.fit(on_grid[mine])
             self.motion_kind_fine.fit(u[mine])
+        self.motion_walk, self.motion_walk_fine = MotionTable(), MotionTable.lattice()
+        if kind is not None:
+            self.fit_walker_speeds(p, grid_xy, kind)
         self.grid_step.fill_(spacing)
+        return self
+
+    def fit_walker_speeds(
+        self, positions: np.ndarray, grid_xy: np.ndarray, kind: np.ndarray
+    ) -> CandidateTransformer:
+        """Measure the walkers' alternative tables: both smoothers' motion on the trajectories
+        ``positions (n, L >= 3, 2)`` metres of the users of :data:`WALKER_KINDS` among ``kind
+        (n,)`` codes, at other speeds (:func:`~estimation.smoothing.motion.speed_scaled` copies
+        with factors from :data:`~estimation.smoothing.motion.WALK_SCALES`), over the grid points
+        ``grid_xy (G, 2)`` metres; no place table (walkers go anywhere in the free space). Fewer
+        than :data:`KIND_TABLE_MIN` walkers leave them unfitted. :meth:`fit_motion` calls it with
+        the training trajectories; a model saved before these tables existed gets them by calling
+        it with the same trajectories and saving again. Returns ``self``."""
+        p = np.asarray(positions, dtype=np.float64)
+        codes = np.asarray(kind).reshape(-1)
+        if len(codes) != len(p):
+            raise ValueError(f"kind holds {len(codes)} codes for {len(p)} trajectories")
+        walkers = np.isin(codes, [KINDS.index(k) for k in WALKER_KINDS])
+        self.motion_walk, self.motion_walk_fine = MotionTable(), MotionTable.lattice()
+        if walkers.sum() < KIND_TABLE_MIN:
+            return self
+        lo, spacing, _, _ = _place_frames(np.asarray(grid_xy, dtype=np.float64))
+        u = speed_scaled((p[walkers] - lo) / spacing, copies=WALK_COPIES, ranges=WALK_SCALES)
+        self.motion_walk.fit(lo + np.rint(u) * spacing)
+        self.motion_walk_fine.fit(snap_to_lattice(u))
         return self
 
     def lane_tables(

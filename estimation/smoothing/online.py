@@ -32,6 +32,7 @@ each acceleration after the one or two before it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -63,6 +64,7 @@ __all__ = [
     "MODE_CHAIN",
     "MODE_SHARPEN",
     "VAGUE_GATE",
+    "WALKER_SPEED_PRIOR",
     "CandidateFilter",
 ]
 
@@ -88,6 +90,12 @@ FILTER_CANDIDATES = 80
 # Prior probability that a user does not move like the training users (the alternative motion
 # model): even odds, untuned; priors of 0.1 to 0.3 moved no figure by more than 3 % (docs/estimation.md).
 ALTERNATIVE_PRIOR = 0.5
+# Prior probability of the walkers' tables at other speeds (CandidateTransformer.fit_walker_speeds),
+# beside the alternatives' ALTERNATIVE_PRIOR. On 500 of our own pedestrians per speed and 1000 per
+# split of our own: at 0.06 those at 0.8 and 2.2 m/s were tracked 4.7 and 6.9 % better and ours
+# 0.6 to 1.5 % worse (a few near aliases, which the broader tables follow); at 0.03, 3.4 and 5.5 %
+# better and ours 0.4 to 0.8 % worse (docs/estimation.md).
+WALKER_SPEED_PRIOR = 0.06
 # A step whose candidates' log-likelihoods span less than this says little about where the user
 # is. The matcher's guided search looks near the track where its k most likely points lie within
 # log(1 + A) of the best (:data:`~estimation.matching.GUIDE`), and then keeps points up to
@@ -301,6 +309,22 @@ class _Hypothesis:
 _Models = tuple[MotionTable | MixtureMotion, MotionTable | None]  # a cell-level and a sub-cell model
 
 
+def _log_priors(prior: float | Sequence[float], n: int) -> np.ndarray:
+    """Log prior ``(1 + n,)`` of the measured model and ``n`` alternatives whose prior is
+    ``prior``: one probability shared evenly, or one per alternative."""
+    each = np.asarray(prior, dtype=np.float64)
+    if each.ndim == 0:
+        shared = float(each)
+        if not 0.0 < shared < 1.0:
+            raise ValueError(f"the alternative model's prior must lie in (0, 1), got {prior}")
+        return np.log([1.0 - shared] + [shared / n] * n)
+    if each.shape != (n,) or not (np.isfinite(each).all() and (each > 0).all() and each.sum() < 1.0):
+        raise ValueError(
+            f"the alternatives' priors must be {n} probabilities above 0 summing to less than 1, got {prior!r}"
+        )
+    return np.log(np.r_[1.0 - each.sum(), each])
+
+
 class CandidateFilter:
     """Forward filter (and prefix smoother) over per-step match candidates of a batch of users.
 
@@ -332,9 +356,10 @@ class CandidateFilter:
         Sub-cells per axis.
     alternative : (MotionTable, MotionTable or None), or a list of them, optional
         Other cell-level and sub-cell motion models, as ``motion`` and ``motion_fine``.
-    alternative_prior : float
+    alternative_prior : float or sequence of float
         Prior probability that a user moves by one of the alternatives, in (0, 1), shared
-        evenly among them.
+        evenly among them; or one prior per alternative, each above 0, summing to less than 1.
+        The measured model has the rest.
     fine_weighed : sequence of int
         Indices into ``alternative`` of models told from the measured one by their sub-cell
         evidence: the cell-level evidence gives these and the measured model their joint weight,
@@ -377,7 +402,7 @@ class CandidateFilter:
         fine_beam: int = FINE_BEAM,
         n_sub: int = SUBCELLS,
         alternative: _Models | list[_Models] | None = None,
-        alternative_prior: float = ALTERNATIVE_PRIOR,
+        alternative_prior: float | Sequence[float] = ALTERNATIVE_PRIOR,
         vague_gate: float | None = VAGUE_GATE,
         fine_weighed: tuple[int, ...] = (),
         memory: MotionMemory | None = None,
@@ -402,11 +427,8 @@ class CandidateFilter:
         self._models = [_Hypothesis(motion, motion_fine, beam, fine_beam)]
         alternatives = [alternative] if isinstance(alternative, tuple) else list(alternative or [])
         if alternatives:
-            if not 0.0 < alternative_prior < 1.0:
-                raise ValueError(f"the alternative model's prior must lie in (0, 1), got {alternative_prior}")
             self._models += [_Hypothesis(*a, beam, fine_beam) for a in alternatives]
-            share = alternative_prior / len(alternatives)
-            self._log_prior = np.log([1.0 - alternative_prior] + [share] * len(alternatives))
+            self._log_prior = _log_priors(alternative_prior, len(alternatives))
         else:
             self._log_prior = np.zeros(1)
         picked = [int(i) for i in fine_weighed]

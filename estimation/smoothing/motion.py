@@ -99,10 +99,10 @@ SCALED_COPIES = 3
 # The walkers' copies at speeds of their own (CandidateTransformer.fit_walker_speeds): each scaled
 # by a factor from one of these ranges (either, evenly), WALK_COPIES of each, so that the tables
 # see paces from half to nearly twice the training pedestrians' (1.1 to 1.7 m/s). One range from
-# 0.5 to 1.7 tracked our own walkers at other speeds as well and ours no better; copies scaled to
-# speeds away from ours (0.45 to 0.95 and 1.9 to 2.8 m/s) took our own pedestrians' error up more
-# (+0.6 to +1.8 % against +0.6 to +1.5 %): what it costs them is the broader model following an
-# alias, not their speeds (docs/estimation.md).
+# 0.5 to 1.7 helped walkers at other speeds less (ours at 0.8 m/s 2.8 % closer, not 4.1 %) and
+# cost ours as much; copies scaled to speeds away from ours (0.45 to 0.95 and 1.9 to 2.8 m/s)
+# cost ours more (+0.6 to +1.8 % against +0.6 to +1.5 %): what they pay for is the broader model
+# following an alias, not their speeds (docs/estimation.md).
 WALK_SCALES = ((0.5, 0.8), (1.25, 1.8))
 WALK_COPIES = 2
 # fit_drives: a step shorter than this (the table's units) stands still; two steps whose headings

@@ -147,9 +147,9 @@ class CandidateTransformer(nn.Module):
         # they existed, or trained without that kind).
         self.motion_kind = MotionTable()
         self.motion_kind_fine = MotionTable.lattice()
-        # Both tables measured on the training walkers at other speeds (fit_walker_speeds): the
+        # Both tables measured on the training pedestrians at other speeds (fit_walker_speeds): the
         # filter's alternative for users on foot at paces of their own (unfitted in models saved
-        # before they existed, or trained without walkers).
+        # before they existed, or trained without pedestrians).
         self.motion_walk = MotionTable()
         self.motion_walk_fine = MotionTable.lattice()
         # How an acceleration on the lattice depends on the one or two before it, measured on the same

@@ -18,15 +18,6 @@ from .errors import EstimationError
 from .noise import check_bits, log_detection_probabilities
 from .tile_search import TileIndex
 
-
-def blank_steps(bits: torch.Tensor | np.ndarray) -> np.ndarray:
-    """``(B, T)`` bool: the steps of ``bits (B, T, M, N_s)`` (a tensor or array of any dtype) with
-    no bit set, where a user is out of coverage: every grid point a fingerprint might come from
-    alike weak reads them alike."""
-    b = torch.as_tensor(bits)
-    return (b.flatten(2) == 0).all(-1).numpy()
-
-
 __all__ = ["FingerprintMatcher", "GUIDE", "blank_steps"]
 
 # Selection bonus of :meth:`FingerprintMatcher.track_candidates`: odds A near the predicted
@@ -38,6 +29,14 @@ GUIDE = (50.0, 3.0, 0.5)
 
 # The matchers in use, by the arrays, noise and threshold they were made for (FingerprintMatcher.shared).
 _IN_USE: weakref.WeakValueDictionary[tuple, FingerprintMatcher] = weakref.WeakValueDictionary()
+
+
+def blank_steps(bits: torch.Tensor | np.ndarray) -> np.ndarray:
+    """``(B, T)`` bool: the steps of ``bits (B, T, M, N_s)`` (a tensor or array of any dtype) with
+    no bit set, where a user is out of coverage: every grid point a fingerprint might come from
+    alike weak reads them alike."""
+    b = torch.as_tensor(bits)
+    return (b.flatten(2) == 0).all(-1).numpy()
 
 
 class FingerprintMatcher:

@@ -211,8 +211,9 @@ class CandidateTransformer(nn.Module):
         if mine is not None and mine.sum() >= KIND_TABLE_MIN:
             self.motion_kind.fit(on_grid[mine])
             self.motion_kind_fine.fit(u[mine])
-        self.motion_walk, self.motion_walk_fine = MotionTable(), MotionTable.lattice()
-        if kind is not None:
+        if kind is None:
+            self.motion_walk, self.motion_walk_fine = MotionTable(), MotionTable.lattice()
+        else:
             self.fit_walker_speeds(p, grid_xy, kind)
         self.grid_step.fill_(spacing)
         return self

@@ -12,7 +12,7 @@ every step, which starts from ``match-cv``.
 Layout: :mod:`.data` (sequence sets and batches), :mod:`.noise` (fresh noisy bits in torch),
 :mod:`.matching` (fingerprint likelihood on the grid), :mod:`.smoothing` (Kalman and hidden-Markov
 smoothers), :mod:`.models` (networks and their registry), :mod:`.classical`, :mod:`.estimator`,
-:mod:`.training`, :mod:`.evaluation`, :mod:`.report`, :mod:`.oracle` (the floor: a particle
+:mod:`.training`, :mod:`.refit` (a trained ``tn-match``'s motion tables measured again), :mod:`.evaluation`, :mod:`.report`, :mod:`.oracle` (the floor: a particle
 smoother that knows how the data were made); :mod:`.names` holds the vocabularies without torch. Public names load on first use, so ``import estimation`` alone does not import torch.
 
 Pipeline::
@@ -56,6 +56,7 @@ _EXPORTS = {
     ),
     ".names": ("CLASSICAL_NAMES", "MODEL_NAMES"),
     ".noise": ("noisy_bits",),
+    ".refit": ("refit_motion",),
     ".oracle": ("ORACLE_PARTICLES", "Oracle", "OracleMethod"),
     ".report": (
         "accuracy_table",

@@ -24,6 +24,7 @@ from .data import Normaliser, SequenceSet
 from .errors import EstimationError
 from .matching import FingerprintMatcher, blank_steps
 from .models import CellHead, CellOutput, ModelSpec, build_network, count_parameters, model_spec, positions
+from .models.candidate_transformer import grid_spacing
 from .names import LOSSES, SCHEDULES, TASKS, Loss, ModelName, Schedule, Task
 from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
@@ -383,6 +384,30 @@ class Estimator(nn.Module):
                 f"{self.name} reads the data set's grid: call attach(dataset) before predicting"
             )
         return self.matcher.track_candidates(bits, self.net.search, refs)
+
+    def fit_motion(self, data: SequenceSet) -> Estimator:
+        """Measure a grid-reading network's motion tables (both smoothers', the alternatives'
+        and the acceleration memory: :meth:`CandidateTransformer.fit_motion`) on the
+        trajectories of ``data`` (at least 3 steps each, on the grid the network reads), the
+        network's weights kept. Training does this before its first epoch; on a trained model it
+        teaches the smoothers the motion of other users (a deployment's own, say), or gives a
+        model saved by an older version the tables added since. Returns ``self``."""
+        if not self.uses_grid:
+            raise EstimationError(
+                f"{self.name} has no motion tables: only a grid-reading network (tn-match) has"
+            )
+        if data.n == 0 or data.length < 3:
+            raise EstimationError(
+                f"motion tables need trajectories of at least 3 steps, got {data.n} of {data.length}"
+            )
+        if bool(self.net.motion.fitted):
+            spacing = grid_spacing(data.grid_xy)
+            if not math.isclose(spacing, float(self.net.grid_step), rel_tol=1e-9):
+                raise EstimationError(
+                    f"trajectories on a grid of {spacing:g} m, the network reads one of {float(self.net.grid_step):g} m"
+                )
+        self.net.fit_motion(data.positions, data.grid_xy, data.index, kind=data.kind)
+        return self
 
     def candidate_filter(
         self, robust: bool | None = None, candidates: int | None = None, mode_chain: float | None = None

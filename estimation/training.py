@@ -364,7 +364,7 @@ def _build_estimator(cfg: TrainConfig, train_set: SequenceSet, val_set: Sequence
     if train_set.length >= 3:
         # The smoothers' motion statistics, measured where their candidates live: on grid points,
         # and on the sub-cell lattice.
-        est.net.fit_motion(train_set.positions, train_set.grid_xy, train_set.index, kind=train_set.kind)
+        est.fit_motion(train_set)
     return est
 
 

@@ -50,7 +50,14 @@ from ..smoothing.motion import (
 from .embedding import sinusoidal_encoding
 from .encoder import encode
 
-__all__ = ["KIND_TABLE", "KIND_TABLE_MIN", "NET_REACH", "WALKER_KINDS", "CandidateTransformer"]
+__all__ = [
+    "KIND_TABLE",
+    "KIND_TABLE_MIN",
+    "NET_REACH",
+    "WALKER_KINDS",
+    "CandidateTransformer",
+    "grid_spacing",
+]
 
 _SCALE = 32.0  # metres; relative candidate offsets are divided by this
 # The kind whose own motion tables the filter weighs as one more alternative: cyclists, whose
@@ -73,12 +80,18 @@ between 3 and 10 m); a move of more is its weighting of the candidates gone to a
 vehicles' error rose by up to 5 %."""
 
 
+def grid_spacing(grid_xy: np.ndarray) -> float:
+    """The spacing (metres) of the grid holding the points ``grid_xy (G, 2)`` metres: the
+    frame :meth:`CandidateTransformer.fit_motion` measures its tables in (1 for a single column)."""
+    steps = np.diff(np.unique(np.asarray(grid_xy, dtype=np.float64)[:, 0]))
+    return float(steps.min()) if len(steps) else 1.0
+
+
 def _place_frames(grid_xy: np.ndarray) -> tuple[np.ndarray, float, tuple, tuple]:
     """The first grid point ``(2,)`` metres and the spacing (metres) of the grid holding
     ``grid_xy (G, 2)``, and the place tables' frames ``(origin, res, shape)`` on it: the cell
     table's (metres, one cell per grid point) and the sub-cell lattice table's (grid units)."""
-    steps = np.diff(np.unique(grid_xy[:, 0]))
-    spacing = float(steps.min()) if len(steps) else 1.0
+    spacing = grid_spacing(grid_xy)
     lo = grid_xy.min(0)
     cells = np.rint((grid_xy.max(0) - lo) / spacing).astype(int) + 1  # grid points per axis
     cell = (lo - spacing / 2, spacing, tuple(cells))

@@ -30,6 +30,7 @@ COMMANDS = (
     "mmwsim.cli.generate",
     "mmwsim.cli.trajectories",
     "mmwsim.cli.train",
+    "mmwsim.cli.refit",
     "mmwsim.cli.evaluate",
     "mmwsim.cli.plan",
     "mmwsim.cli.demo",

@@ -2,7 +2,7 @@
 
     python benchmarks/foreign_motion.py RUN DATASET [METHOD ...] [--n 1000] [--length 7] [--noise 6]
         [--vehicle-speeds 7.5,9.5] [--pedestrian-speeds 1.0,1.8] [--hybrid-speeds 2.6,4.4]
-        [--oracle [--speed-spread 0.1]]
+        [--oracle [--speed-spread 0.1]] [--adapt N [--adapt-length 15]]
 
 Others evaluate our models on trajectories of their own generators. This script makes two such
 generators that share nothing with :mod:`mmwsim.trajectories` but the free space:
@@ -40,7 +40,10 @@ speeds, our own test users): the oracle of that very generator
 each, so their oracles know it), so that a model's error on motion that is not ours reads against
 what any tracker could reach on it. ``--speed-spread S`` adds, beside each such floor, that oracle
 reading every user's speeds within +-S instead of knowing them
-(:meth:`estimation.oracle.Oracle.with_speed_spread`, 4x the particles).
+(:meth:`estimation.oracle.Oracle.with_speed_spread`, 4x the particles). ``--adapt N`` adds the
+model adapted to each generator from fingerprints alone: :meth:`Estimator.adapt_motion` on its own
+tracks of N more users per kind of that generator (a fresh draw, not the users it is then scored
+on; for our own test users, the validation split's).
 """
 
 from __future__ import annotations
@@ -149,6 +152,52 @@ def shifted_walks(ds, n: int, length: int, seed: int, mean_speed: float, kind: s
     return _habit_walks(ds, kind, n, length, seed, on_streets=True, habits=habits)
 
 
+def draw_sets(ds, fs, n: int, length: int, seed: int, shifted: dict[str, list[float]]):
+    """Every foreign set, ``n`` users per kind of ``length`` steps: ``{set: {kind: positions (n,
+    length, 2)}}`` and ``{(set, kind): attrs}`` of those our generator made."""
+    rng = np.random.default_rng(seed)
+    sets: dict[str, dict[str, np.ndarray]] = {"smooth": {}, "events": {}}
+    made = {}  # (set, kind) -> how our generator made it: the oracle of that generator reads it
+    for k in KINDS:
+        sets["smooth"][k] = smooth_walks(fs, k, n, length, rng)
+        t = event_walks(ds, k, n, length, seed + 1)
+        sets["events"][k], made["events", k] = t.positions, t.attrs
+    sets["lanes"] = {"vehicle": lane_walks(ds, n, length, seed + 2)}
+    for kind, speeds in shifted.items():
+        for v in speeds:
+            t = shifted_walks(ds, n, length, seed + 3, v, kind)
+            sets.setdefault(f"own at {v:g} m/s", {})[kind] = t.positions
+            made[f"own at {v:g} m/s", kind] = t.attrs
+    return sets, made
+
+
+def adapted_models(args, ds, shifted, validation, fs) -> dict:
+    """``{set: Estimator}``: the model with its motion tables measured on its own tracks of
+    ``args.adapt`` fresh unlabelled users per kind of that set's generator
+    (:meth:`Estimator.adapt_motion`); for our own test users, on the validation split's."""
+    from estimation import Estimator
+
+    pool, _ = draw_sets(ds, fs, args.adapt, args.adapt_length, args.seed + 1000, shifted)
+    ours = validation.positions[: args.adapt * len(KINDS), : args.adapt_length].astype(np.float64)
+    pool["own test/seen"] = {"all": ours}
+    out = {}
+    for gen, per_kind in pool.items():
+        pos = np.concatenate(list(per_kind.values()))
+        b, _ = stored_bits(ds, pos, args.seed + 1007)
+        est = Estimator.load(args.run).attach(ds, sigma=args.noise)
+        est.robust_motion = not args.measured_motion_only
+        est.street_lanes = not args.measured_lanes
+        est.route_tracking = not args.no_routes
+        t0 = time.perf_counter()
+        out[gen] = est.adapt_motion(b)
+        print(
+            f"  adapted to {gen}: {len(pos)} unlabelled users of {pos.shape[1]} steps, "
+            f"{time.perf_counter() - t0:.0f} s",
+            flush=True,
+        )
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", help="training run folder (or model.pt)")
@@ -191,7 +240,18 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="with --oracle, also the oracle of each set reading its users' speeds within +-S (particles x4)",
     )
+    ap.add_argument(
+        "--adapt",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also the model adapted to each generator: its motion tables measured on its own tracks of N "
+        "fresh unlabelled users per kind (Estimator.adapt_motion; our own test users: the validation split's)",
+    )
+    ap.add_argument("--adapt-length", type=int, default=15, help="steps of the --adapt users (default 15)")
     args = ap.parse_args(argv)
+    if args.adapt < 0 or args.adapt_length < 3:
+        ap.error("--adapt must be >= 0 and --adapt-length >= 3")
     if args.speed_spread is not None and not args.oracle:
         ap.error("--speed-spread needs --oracle")
     shifted = {}  # kind -> mean speeds, m/s
@@ -219,22 +279,10 @@ def main(argv: list[str] | None = None) -> int:
     fs = FreeSpace.from_scene(
         ds.scene(), clearance=0.5, coverage=CoverageMask.from_dataset(ds), bounds=ds.grid.bounds
     )
-    rng = np.random.default_rng(args.seed)
-    sets: dict[str, dict[str, np.ndarray]] = {"smooth": {}, "events": {}}
-    made = {}  # (set, kind) -> how our generator made it: the oracle of that generator reads it
-    for k in KINDS:
-        sets["smooth"][k] = smooth_walks(fs, k, args.n, args.length, rng)
-        t = event_walks(ds, k, args.n, args.length, args.seed + 1)
-        sets["events"][k], made["events", k] = t.positions, t.attrs
-    sets["lanes"] = {"vehicle": lane_walks(ds, args.n, args.length, args.seed + 2)}
-    for kind, speeds in shifted.items():
-        for v in speeds:
-            try:
-                t = shifted_walks(ds, args.n, args.length, args.seed + 3, v, kind)
-            except MmwsimError as e:  # a speed the generator's model cannot keep
-                ap.error(f"--{kind}-speeds: {e}")
-            sets.setdefault(f"own at {v:g} m/s", {})[kind] = t.positions
-            made[f"own at {v:g} m/s", kind] = t.attrs
+    try:
+        sets, made = draw_sets(ds, fs, args.n, args.length, args.seed, shifted)
+    except MmwsimError as e:  # a speed the generator's model cannot keep
+        ap.error(f"--KIND-speeds: {e}")
     own, _ = load_splits(args.dataset, ("validation", "test/seen"), dataset=ds)
     seen = own["test/seen"]
     kinds = np.asarray(["static", "pedestrian", "hybrid", "vehicle"])[seen.kind]
@@ -262,6 +310,7 @@ def main(argv: list[str] | None = None) -> int:
                 readers[key].matcher, readers[key].name = ours.matcher, "reading speeds"
 
     others = [method(name).for_sigma(args.noise, own["validation"]) for name in args.methods]
+    adapted = adapted_models(args, ds, shifted, own["validation"], fs) if args.adapt else {}
 
     print(
         f"{args.run}: {args.length} steps, {args.noise:g} dB, mean per-trajectory RMSE in metres (median, p95)"
@@ -277,6 +326,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"  {gen:14s} {k:10s} {est.name}: {r.mean():.2f} ({np.median(r):.2f}, {np.quantile(r, 0.95):.2f})"
                 f"  [{time.perf_counter() - t0:.0f} s]  cell {cell.mean():.2f}"
             )
+            if gen in adapted:
+                ra = trajectory_rmse(predict_batched(adapted[gen], b), pos)
+                line += f"  adapted: {ra.mean():.2f} ({np.median(ra):.2f}, {np.quantile(ra, 0.95):.2f})"
             for m in others + [f[gen, k] for f in (floors, readers) if (gen, k) in f]:
                 p2 = m.predict_lengths(b.bool(), [args.length])[args.length][0]
                 r2 = trajectory_rmse(p2, pos)

@@ -32,6 +32,7 @@ from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.line import LINE_MIN_STEPS, line_weight
 from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
 from .smoothing.online import (
+    ADAPTED_PRIOR,
     ALTERNATIVE_PRIOR,
     FILTER_CANDIDATES,
     MODE_CHAIN,
@@ -409,6 +410,30 @@ class Estimator(nn.Module):
         self.net.fit_motion(data.positions, data.grid_xy, data.index, kind=data.kind)
         return self
 
+    def adapt_motion(self, bits: torch.Tensor | np.ndarray) -> Estimator:
+        """Adapt a grid-reading network to a population whose positions nobody knows: measure
+        its adapted tables (:meth:`CandidateTransformer.fit_adapted`) on its own tracks
+        (:meth:`predict`) of their unlabelled fingerprint sequences ``bits (n, L >= 3, M, N_s)``
+        of 0/1 from the attached grid. The filter weighs them as one more hypothesis at
+        :data:`~estimation.smoothing.online.ADAPTED_PRIOR`, beside the measured tables, which
+        stay as they are, as do the network's weights: users who move as the training users did
+        keep the measured tables by their evidence. Returns ``self``."""
+        if not self.uses_grid:
+            raise EstimationError(
+                f"{self.name} has no motion tables: only a grid-reading network (tn-match) has"
+            )
+        if self.matcher is None:
+            raise EstimationError(
+                f"{self.name} reads the data set's grid: call attach(dataset) before adapting"
+            )
+        x = check_bits(bits, self.n_beams, self.n_bins, ndim=4)
+        if x.shape[0] == 0 or x.shape[1] < 3:
+            raise EstimationError(
+                f"motion tables need sequences of at least 3 steps, got {x.shape[0]} of {x.shape[1]}"
+            )
+        self.net.fit_adapted(self.predict(x).double().numpy(), self.matcher.grid_xy)
+        return self
+
     def candidate_filter(
         self, robust: bool | None = None, candidates: int | None = None, mode_chain: float | None = None
     ) -> CandidateFilter:
@@ -491,9 +516,10 @@ class Estimator(nn.Module):
         copies, the tables for steady users at other speeds (:meth:`_steady_motion`) and those of
         one kind alone (:meth:`_kind_motion`) where the model has them, sharing
         :data:`~estimation.smoothing.online.ALTERNATIVE_PRIOR`, and the walkers' tables at other
-        speeds where it has them, at :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR`;
-        their prior (one probability shared evenly where the walkers' tables are not there, else
-        one per alternative); the indices of those the filter tells from the measured tables by their
+        speeds and the adapted tables (:meth:`adapt_motion`) where it has them, at
+        :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR` and
+        :data:`~estimation.smoothing.online.ADAPTED_PRIOR`; their prior (one probability shared
+        evenly where neither of the last two is there, else one per alternative); the indices of those the filter tells from the measured tables by their
         sub-cell evidence (``CandidateFilter(fine_weighed=...)``); and those of the tables
         measured at speeds the training users did not keep, whose paths the acceleration memory
         does not weigh (``CandidateFilter(memory_skips=...)``)."""
@@ -503,11 +529,20 @@ class Estimator(nn.Module):
         alts = [self._broadened_motion(), *([] if steady is None else [steady]), *kind]
         fine_weighed = (1,) if steady is not None and self._scaled_fine() else ()
         skips = (1,) if steady is not None else ()
-        if not bool(net.motion_walk.fitted):
+        own = [
+            (tables, prior)
+            for tables, prior in (
+                ((net.motion_walk, net.motion_walk_fine), WALKER_SPEED_PRIOR),
+                ((net.motion_adapted, net.motion_adapted_fine), ADAPTED_PRIOR),
+            )
+            if bool(tables[0].fitted)
+        ]
+        if not own:
             return alts, ALTERNATIVE_PRIOR, fine_weighed, skips
-        priors = (ALTERNATIVE_PRIOR / len(alts),) * len(alts) + (WALKER_SPEED_PRIOR,)
-        alts.append((net.motion_walk, net.motion_walk_fine))
-        return alts, priors, fine_weighed, skips + (len(alts) - 1,)
+        priors = (ALTERNATIVE_PRIOR / len(alts),) * len(alts) + tuple(prior for _, prior in own)
+        skips += tuple(range(len(alts), len(alts) + len(own)))
+        alts += [tables for tables, _ in own]
+        return alts, priors, fine_weighed, skips
 
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The tables measured on the training users of one kind alone

@@ -6,7 +6,9 @@ learned: training measures them on its training trajectories before the first ep
 the same data set (users who move otherwise than the training users: a deployment's own, or
 ``mmwsim trajectories --set`` with other speeds) and writes a new run folder with the same
 network, so that evaluation, prediction and the online tracker use the new tables. A run saved
-by an older version also gains the tables added since.
+by an older version also gains the tables added since. Where only the users' fingerprints are
+known, it adapts the run to them instead (:meth:`Estimator.adapt_motion`: tables measured on the
+run's own tracks of those fingerprints, weighed beside the measured ones).
 """
 
 from __future__ import annotations
@@ -18,10 +20,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from .checkpoint import MODEL_FORMAT, load_checkpoint
 from .data import SequenceSet
 from .errors import EstimationError
 from .estimator import MODEL_FILE, Estimator
+from .noise import noisy_bits
 from .training import RECORDING_FILE, RUN_FILE, read_run_info
 
 __all__ = ["refit_motion"]
@@ -34,6 +39,8 @@ def refit_motion(
     data: SequenceSet,
     out: str | os.PathLike,
     data_info: dict[str, Any] | None = None,
+    unlabelled_noise: float | None = None,
+    seed: int = 0,
 ) -> dict[str, Any]:
     """Write the run folder ``out``: the trained run ``run`` with its motion tables measured on
     the trajectories of ``data`` (:meth:`Estimator.fit_motion`), its network's weights kept.
@@ -55,6 +62,14 @@ def refit_motion(
         ``motion`` in ``run.json``. Where it and the run's own data description both carry a
         content hash they must agree: the tables are measured in the frame of the grid the
         network was trained on.
+    unlabelled_noise : float, optional
+        Instead, adapt the run to fingerprints drawn at ``data``'s positions with this noise
+        (dB) and ``seed`` (:meth:`Estimator.adapt_motion`: tables measured on the run's own
+        tracks of them, weighed beside the measured tables, which stay): what a deployment can
+        do with fingerprint sequences of users whose positions nobody knows. The positions
+        only make the fingerprints.
+    seed : int
+        Seed of that noise.
 
     Returns
     -------
@@ -81,7 +96,12 @@ def refit_motion(
     state = load_checkpoint(run / MODEL_FILE, MODEL_FORMAT, _MODEL_KEYS[1:])
     est = Estimator.from_state(state, str(run / MODEL_FILE))
     start = time.perf_counter()
-    est.fit_motion(data)
+    if unlabelled_noise is None:
+        est.fit_motion(data)
+    else:
+        bits = noisy_bits(data, float(unlabelled_noise), torch.Generator().manual_seed(int(seed)))
+        est.attach(data, sigma=float(unlabelled_noise)).adapt_motion(bits)
+        data_info |= {"unlabelled_noise": float(unlabelled_noise), "seed": int(seed)}
     motion = {**data_info, "trajectories": int(data.n), "seconds": round(time.perf_counter() - start, 3)}
     motion["from_run"] = str(run.resolve())
     with locked_output(out, "run") as final:

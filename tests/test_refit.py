@@ -19,6 +19,7 @@ from estimation import (
     train,
     trajectory_rmse,
 )
+from estimation.smoothing.online import ADAPTED_PRIOR
 from estimation.synthetic import random_walks, toy_grid, toy_sequence_set
 from mmwsim.cli import main
 from mmwsim.constants import THRESHOLD_DBM
@@ -173,3 +174,55 @@ def test_refit_of_a_damaged_run_is_one_line(trained, tmp_path, capsys, garbage):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and garbage in err
     assert not (tmp_path / "new").exists()
+
+
+def test_adapt_motion_learns_from_fingerprints_alone(trained, tmp_path):
+    """Tables measured on the model's own tracks of unlabelled slow users, weighed beside the
+    measured ones, track such users better and the training users as well; the measured tables
+    and the weights stay as trained."""
+    run, _, va = trained
+    others, pool = _walks(100, 6, (0.5, 2.0)), _walks(256, 5, (0.5, 2.0))
+    before = Estimator.load(run)
+    assert not bool(before.net.motion_adapted.fitted)
+    est = Estimator.load(run).attach(pool)
+    est.adapt_motion(noisy_bits(pool, 6.0, torch.Generator().manual_seed(9)))
+    net = est.net
+    assert bool(net.motion_adapted.fitted) and bool(net.motion_adapted_fine.fitted)
+    for name in ("motion", "motion_fine", "motion_kind", "motion_walk"):
+        assert torch.equal(getattr(net, name).log_accel_table, getattr(before.net, name).log_accel_table)
+    assert all(torch.equal(p, q) for p, q in zip(net.parameters(), before.net.parameters(), strict=True))
+    # the last hypothesis, at its own prior, its paths not weighed by the memory
+    alts, priors, _, skips = est._alternative_motion()
+    assert alts[-1] == (net.motion_adapted, net.motion_adapted_fine)
+    assert priors[-1] == ADAPTED_PRIOR and len(alts) - 1 in skips
+    est.save(tmp_path / "model.pt")
+    assert _tracked(tmp_path / "model.pt", others) < 0.98 * _tracked(run, others)
+    assert _tracked(tmp_path / "model.pt", va) < 1.01 * _tracked(run, va)
+    # measuring the tables again drops an adaptation made with the old ones
+    assert not bool(est.net.fit_motion(va.positions, va.grid_xy, va.index).motion_adapted.fitted)
+    with pytest.raises(EstimationError, match="attach"):
+        Estimator.load(run).adapt_motion(torch.zeros(4, 5, 8, 12))
+    with pytest.raises(EstimationError, match="at least 3 steps"):
+        Estimator.load(run).attach(pool).adapt_motion(torch.zeros(4, 2, 8, 12))
+    with pytest.raises(EstimationError, match="bits"):
+        Estimator.load(run).attach(pool).adapt_motion(torch.full((4, 5, 8, 12), float("nan")))
+
+
+def test_refit_cli_unlabelled(trained, tmp_path, capsys):
+    run, _, _ = trained
+    argv = ["refit", str(run), "--out", str(tmp_path / "u"), "--unlabelled", "--max-trajectories", "40"]
+    assert main(argv) == 0
+    assert "adapted" in capsys.readouterr().out
+    motion = json.loads((tmp_path / "u" / "run.json").read_text())["motion"]
+    assert motion["unlabelled_noise"] == 6.0 and motion["trajectories"] == 40
+    adapted, trained_net = Estimator.load(tmp_path / "u").net, Estimator.load(run).net
+    assert bool(adapted.motion_adapted.fitted) and not bool(trained_net.motion_adapted.fitted)
+    assert torch.equal(adapted.motion.log_accel_table, trained_net.motion.log_accel_table)
+    for extra, needle in (
+        (["--noise", "nan"], "--noise"),
+        (["--max-trajectories", "-1"], "--max-trajectories"),
+    ):
+        assert main(["refit", str(run), "--out", str(tmp_path / "v"), "--unlabelled", *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err
+    assert not (tmp_path / "v").exists()

@@ -165,6 +165,10 @@ class CandidateTransformer(nn.Module):
         # before they existed, or trained without pedestrians).
         self.motion_walk = MotionTable()
         self.motion_walk_fine = MotionTable.lattice()
+        # Measured on the network's own tracks of a population's unlabelled fingerprints
+        # (Estimator.adapt_motion; fit_adapted): one more hypothesis of the filter.
+        self.motion_adapted = MotionTable()
+        self.motion_adapted_fine = MotionTable.lattice()
         # How an acceleration on the lattice depends on the one or two before it, measured on the same
         # trajectories (none in models saved before it existed).
         self.memory = MotionMemory()
@@ -194,8 +198,9 @@ class CandidateTransformer(nn.Module):
         again on the users of :data:`KIND_TABLE` alone, without a place table, where there are at
         least :data:`KIND_TABLE_MIN` of them (else they stay unfitted), and the walkers' tables at
         other speeds (:meth:`fit_walker_speeds`). With ``L >= 4``, the acceleration memory
-        (:class:`~estimation.smoothing.memory.MotionMemory`) on the lattice positions too.
-        Returns ``self``."""
+        (:class:`~estimation.smoothing.memory.MotionMemory`) on the lattice positions too. The
+        tables adapted to a population (:meth:`fit_adapted`), made with the tables this
+        replaces, are dropped. Returns ``self``."""
         grid_xy = np.asarray(grid_xy, dtype=np.float64)
         p = np.asarray(positions, dtype=np.float64)
         mine = None if kind is None else np.asarray(kind).reshape(-1) == KINDS.index(KIND_TABLE)
@@ -228,6 +233,7 @@ class CandidateTransformer(nn.Module):
             self.motion_walk, self.motion_walk_fine = MotionTable(), MotionTable.lattice()
         else:
             self.fit_walker_speeds(p, grid_xy, kind)
+        self.motion_adapted, self.motion_adapted_fine = MotionTable(), MotionTable.lattice()
         self.grid_step.fill_(spacing)
         return self
 
@@ -254,6 +260,22 @@ class CandidateTransformer(nn.Module):
         u = speed_scaled((p[walkers] - lo) / spacing, copies=WALK_COPIES, ranges=WALK_SCALES)
         self.motion_walk.fit(lo + np.rint(u) * spacing)
         self.motion_walk_fine.fit(snap_to_lattice(u))
+        return self
+
+    def fit_adapted(self, tracks: np.ndarray, grid_xy: np.ndarray) -> CandidateTransformer:
+        """Measure the adapted tables (cell and sub-cell, no place table) on ``tracks (n, L >= 3,
+        2)`` metres, the network's own estimates of a population's positions, over the grid
+        points ``grid_xy (G, 2)`` metres. The filter weighs them beside the measured tables
+        rather than in their place: measured on estimates they are blurred where the measured
+        ones are exact (our drivers' lattice patterns), so users who move as the training users
+        did keep the measured ones by their evidence. Returns ``self``."""
+        p = np.asarray(tracks, dtype=np.float64)
+        if p.ndim != 3 or p.shape[1] < 3 or p.shape[2] != 2 or not np.isfinite(p).all():
+            raise ValueError(f"tracks must be finite (n, L >= 3, 2) metres, got shape {p.shape}")
+        lo, spacing, _, _ = _place_frames(np.asarray(grid_xy, dtype=np.float64))
+        self.motion_adapted, self.motion_adapted_fine = MotionTable(), MotionTable.lattice()
+        self.motion_adapted.fit(lo + np.rint((p - lo) / spacing) * spacing)
+        self.motion_adapted_fine.fit(snap_to_lattice((p - lo) / spacing))
         return self
 
     def lane_tables(

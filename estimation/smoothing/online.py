@@ -56,6 +56,7 @@ from .memory import MEMORY_PATHS, MEMORY_WEIGHT, MotionMemory, memory_shift
 from .motion import SUBCELLS, MixtureMotion, MotionTable
 
 __all__ = [
+    "ADAPTED_PRIOR",
     "ALTERNATIVE_PRIOR",
     "BEAM",
     "FILTER_CANDIDATES",
@@ -96,6 +97,12 @@ ALTERNATIVE_PRIOR = 0.5
 # 0.6 to 1.5 % worse (a few near aliases, which the broader tables follow); at 0.03, 3.4 and 5.5 %
 # better and ours 0.4 to 0.8 % worse (docs/estimation.md).
 WALKER_SPEED_PRIOR = 0.06
+# Prior of the tables measured on the network's own tracks of a population's unlabelled
+# fingerprints (Estimator.adapt_motion), beside the alternatives'. Replacing the measured tables
+# instead costs our own vehicles 4.8x (0.09 to 0.42 m: tables measured on estimates blur their
+# exact lattice patterns); as a hypothesis at 0.2 or 0.4 they keep 0.09 m while the foreign sets
+# of benchmarks/foreign_motion.py gain nearly as much (0.4 the more; docs/estimation.md).
+ADAPTED_PRIOR = 0.4
 # A step whose candidates' log-likelihoods span less than this says little about where the user
 # is. The matcher's guided search looks near the track where its k most likely points lie within
 # log(1 + A) of the best (:data:`~estimation.matching.GUIDE`), and then keeps points up to

@@ -519,17 +519,19 @@ class Estimator(nn.Module):
         speeds and the adapted tables (:meth:`adapt_motion`) where it has them, at
         :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR` and
         :data:`~estimation.smoothing.online.ADAPTED_PRIOR`; their prior (one probability shared
-        evenly where neither of the last two is there, else one per alternative); the indices of those the filter tells from the measured tables by their
-        sub-cell evidence (``CandidateFilter(fine_weighed=...)``); and those of the tables
-        measured at speeds the training users did not keep, whose paths the acceleration memory
-        does not weigh (``CandidateFilter(memory_skips=...)``)."""
+        evenly where neither of the last two is there, else one per alternative); the indices
+        of those the filter tells from the measured tables by their sub-cell evidence
+        (``CandidateFilter(fine_weighed=...)``); and those of the tables measured at speeds the
+        training users did not keep or on estimates, whose paths the acceleration memory does
+        not weigh (``CandidateFilter(memory_skips=...)``)."""
         net = self.net
         steady = self._steady_motion()
         kind = [self._kind_motion()] if bool(net.motion_kind.fitted) else []
         alts = [self._broadened_motion(), *([] if steady is None else [steady]), *kind]
         fine_weighed = (1,) if steady is not None and self._scaled_fine() else ()
         skips = (1,) if steady is not None else ()
-        own = [
+        # each at a prior of its own; the memory, measured at the training speeds, weighs neither
+        extra = [
             (tables, prior)
             for tables, prior in (
                 ((net.motion_walk, net.motion_walk_fine), WALKER_SPEED_PRIOR),
@@ -537,11 +539,11 @@ class Estimator(nn.Module):
             )
             if bool(tables[0].fitted)
         ]
-        if not own:
+        if not extra:
             return alts, ALTERNATIVE_PRIOR, fine_weighed, skips
-        priors = (ALTERNATIVE_PRIOR / len(alts),) * len(alts) + tuple(prior for _, prior in own)
-        skips += tuple(range(len(alts), len(alts) + len(own)))
-        alts += [tables for tables, _ in own]
+        priors = (ALTERNATIVE_PRIOR / len(alts),) * len(alts) + tuple(prior for _, prior in extra)
+        skips += tuple(range(len(alts), len(alts) + len(extra)))
+        alts += [tables for tables, _ in extra]
         return alts, priors, fine_weighed, skips
 
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:

@@ -45,7 +45,12 @@ def register(sub) -> None:
         default=SIGMA_DB,
         help=f"--unlabelled: fingerprint noise, dB (default {SIGMA_DB:g})",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the --unlabelled noise and of the --max-trajectories subset (default 0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the --unlabelled noise and of the --max-trajectories subset (default 0)",
+    )
     p.add_argument(
         "--max-trajectories",
         type=int,

@@ -171,11 +171,21 @@ def draw_sets(ds, fs, n: int, length: int, seed: int, shifted: dict[str, list[fl
     return sets, made
 
 
+def load_model(args, ds):
+    """The run as the options ask, attached to ``ds`` at the benchmark's noise."""
+    from estimation import Estimator
+
+    est = Estimator.load(args.run).attach(ds, sigma=args.noise)
+    est.robust_motion = not args.measured_motion_only
+    est.street_lanes = not args.measured_lanes
+    est.route_tracking = not args.no_routes
+    return est
+
+
 def adapted_models(args, ds, shifted, validation, fs) -> dict:
     """``{set: Estimator}``: the model with its motion tables measured on its own tracks of
     ``args.adapt`` fresh unlabelled users per kind of that set's generator
     (:meth:`Estimator.adapt_motion`); for our own test users, on the validation split's."""
-    from estimation import Estimator
 
     pool, _ = draw_sets(ds, fs, args.adapt, args.adapt_length, args.seed + 1000, shifted)
     ours = validation.positions[: args.adapt * len(KINDS), : args.adapt_length].astype(np.float64)
@@ -184,10 +194,7 @@ def adapted_models(args, ds, shifted, validation, fs) -> dict:
     for gen, per_kind in pool.items():
         pos = np.concatenate(list(per_kind.values()))
         b, _ = stored_bits(ds, pos, args.seed + 1007)
-        est = Estimator.load(args.run).attach(ds, sigma=args.noise)
-        est.robust_motion = not args.measured_motion_only
-        est.street_lanes = not args.measured_lanes
-        est.route_tracking = not args.no_routes
+        est = load_model(args, ds)
         t0 = time.perf_counter()
         out[gen] = est.adapt_motion(b)
         print(
@@ -264,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         if not all(math.isfinite(v) and v > 0 for v in shifted[kind]):
             ap.error(f"--{kind}-speeds {given!r}: speeds must be positive numbers")
 
-    from estimation import EstimationError, Estimator, method
+    from estimation import EstimationError, method
     from estimation.adapter import load_splits
     from estimation.metrics import trajectory_rmse
     from mmwsim import Dataset, FreeSpace
@@ -272,10 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     from mmwsim.geometry.freespace import CoverageMask
 
     ds = Dataset.open(args.dataset)
-    est = Estimator.load(args.run).attach(ds, sigma=args.noise)
-    est.robust_motion = not args.measured_motion_only
-    est.street_lanes = not args.measured_lanes
-    est.route_tracking = not args.no_routes
+    est = load_model(args, ds)
     fs = FreeSpace.from_scene(
         ds.scene(), clearance=0.5, coverage=CoverageMask.from_dataset(ds), bounds=ds.grid.bounds
     )

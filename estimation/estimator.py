@@ -46,6 +46,8 @@ from .smoothing.walks import WALK_FREE_PRIOR, walk_track
 __all__ = ["TrainConfig", "Estimator", "MODEL_FILE", "OnlineTracker"]
 
 MODEL_FILE = "model.pt"
+MODEL_KEYS = ("config", "n_beams", "n_bins", "normaliser", "state_dict")
+"""What a model file holds beside its format (and whatever training adds, e.g. its epoch)."""
 
 
 _WHOLE = (
@@ -803,9 +805,7 @@ class Estimator(nn.Module):
         path = Path(path)
         if path.is_dir():
             path = path / MODEL_FILE
-        state = load_checkpoint(
-            path, MODEL_FORMAT, ("config", "n_beams", "n_bins", "normaliser", "state_dict")
-        )
+        state = load_checkpoint(path, MODEL_FORMAT, MODEL_KEYS)
         return cls.from_state(state, str(path))
 
 

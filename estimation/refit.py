@@ -25,13 +25,11 @@ import torch
 from .checkpoint import MODEL_FORMAT, load_checkpoint
 from .data import SequenceSet
 from .errors import EstimationError
-from .estimator import MODEL_FILE, Estimator
+from .estimator import MODEL_FILE, MODEL_KEYS, Estimator
 from .noise import noisy_bits
 from .training import RECORDING_FILE, RUN_FILE, read_run_info
 
 __all__ = ["refit_motion"]
-
-_MODEL_KEYS = ("format", "config", "n_beams", "n_bins", "normaliser", "state_dict")
 
 
 def refit_motion(
@@ -76,7 +74,7 @@ def refit_motion(
     dict
         The ``motion`` entry: ``trajectories``, ``seconds`` and ``data_info``'s keys.
     """
-    from mmwsim.files import replace_dir
+    from mmwsim.files import remove_tree, replace_dir
     from mmwsim.locks import locked_output
 
     run, out = Path(run), Path(out)
@@ -93,7 +91,7 @@ def refit_motion(
         raise EstimationError(f"{out}: is the run itself; choose another --out (the run stays as it is)")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise EstimationError(f"{out}: exists and is not an empty folder; choose another --out")
-    state = load_checkpoint(run / MODEL_FILE, MODEL_FORMAT, _MODEL_KEYS[1:])
+    state = load_checkpoint(run / MODEL_FILE, MODEL_FORMAT, MODEL_KEYS)
     est = Estimator.from_state(state, str(run / MODEL_FILE))
     start = time.perf_counter()
     if unlabelled_noise is None:
@@ -106,14 +104,14 @@ def refit_motion(
     motion["from_run"] = str(run.resolve())
     with locked_output(out, "run") as final:
         tmp = final.with_name(f".{final.name}.partial")
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_tree(tmp)
         tmp.mkdir()
         try:
-            est.save(tmp / MODEL_FILE, {k: v for k, v in state.items() if k not in _MODEL_KEYS})
+            est.save(tmp / MODEL_FILE, {k: v for k, v in state.items() if k not in ("format", *MODEL_KEYS)})
             (tmp / RUN_FILE).write_text(json.dumps({**info, "motion": motion}, indent=2, sort_keys=True))
             if (run / RECORDING_FILE).is_file():
                 shutil.copyfile(run / RECORDING_FILE, tmp / RECORDING_FILE)
             replace_dir(tmp, final)
         finally:
-            shutil.rmtree(tmp, ignore_errors=True)
+            remove_tree(tmp)
     return motion

@@ -70,7 +70,11 @@ KIND_TABLE_MIN = 20  # trajectories of that kind below which its tables are not 
 # (CandidateTransformer.fit_walker_speeds): people on foot keep their paths' shapes at other paces,
 # which the tables measured at the training pedestrians' speeds (1.1 to 1.7 m/s) mark as speeding
 # up or slowing down at every step. Not cyclists: scaled up to 6 m/s they explained a vehicle at
-# 5.3 m per step by a track 8 m off it, and our own test vehicles' error rose by 3.7 %.
+# 5.3 m per step by a track 8 m off it, and our own test vehicles' error rose by 3.7 %. Nor as a
+# hypothesis of their own (scaled by 1.25 to 1.8, at a prior of 0.03 or 0.06, with or without the
+# place table): our cyclists at 6 m/s 0.634 -> 0.551 to 0.559 m, but one of 300 of our test
+# vehicles, driving at 5.3 m/s, went from 0.14 to 1.94 m (all of them +6 %); without the sub-cell
+# table the cyclists kept a quarter of the gain, the vehicle its error.
 WALKER_KINDS = ("pedestrian",)
 NET_REACH = 10.0
 """Grid spacings the network may move a step of the classical estimate by. Its moves are local

@@ -89,6 +89,25 @@ def _blocks(n: int, size: int) -> list[slice]:
     return [slice(a, a + size) for a in range(0, max(n, 1), size)]
 
 
+class _NoBar:
+    """What :func:`_progress_bar` gives without a bar: updates that show nothing."""
+
+    def update(self, n: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress_bar(n: int, show: bool) -> Any:
+    """A tqdm bar of ``n`` sequences to predict where ``show``, else one that shows nothing."""
+    if not show:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=n, desc="predict", unit="seq", dynamic_ncols=True)
+
+
 def _rows(x: Any, rows: slice) -> Any:
     """The sequences ``rows`` of a network input: a tensor, or a tuple of tensors (or None)."""
     if isinstance(x, tuple):
@@ -412,14 +431,15 @@ class Estimator(nn.Module):
         self.net.fit_motion(data.positions, data.grid_xy, data.index, kind=data.kind)
         return self
 
-    def adapt_motion(self, bits: torch.Tensor | np.ndarray) -> Estimator:
+    def adapt_motion(self, bits: torch.Tensor | np.ndarray, progress: bool = False) -> Estimator:
         """Adapt a grid-reading network to a population whose positions nobody knows: measure
         its adapted tables (:meth:`CandidateTransformer.fit_adapted`) on its own tracks
         (:meth:`predict`) of their unlabelled fingerprint sequences ``bits (n, L >= 3, M, N_s)``
         of 0/1 from the attached grid. The filter weighs them as one more hypothesis at
         :data:`~estimation.smoothing.online.ADAPTED_PRIOR`, beside the measured tables, which
         stay as they are, as do the network's weights: users who move as the training users did
-        keep the measured tables by their evidence. Returns ``self``."""
+        keep the measured tables by their evidence. ``progress`` shows a bar of the tracking
+        (about 30 ms per 15-step sequence). Returns ``self``."""
         if not self.uses_grid:
             raise EstimationError(
                 f"{self.name} has no motion tables: only a grid-reading network (tn-match) has"
@@ -433,7 +453,7 @@ class Estimator(nn.Module):
             raise EstimationError(
                 f"motion tables need sequences of at least 3 steps, got {x.shape[0]} of {x.shape[1]}"
             )
-        self.net.fit_adapted(self.predict(x).double().numpy(), self.matcher.grid_xy)
+        self.net.fit_adapted(self.predict(x, progress=progress).double().numpy(), self.matcher.grid_xy)
         return self
 
     def candidate_filter(
@@ -643,9 +663,10 @@ class Estimator(nn.Module):
         return d.square().sum(), d.numel()
 
     @torch.no_grad()
-    def predict(self, x: Any) -> torch.Tensor:
+    def predict(self, x: Any, progress: bool = False) -> torch.Tensor:
         """``bits (B, T, M, N_s)`` of 0/1, a tensor or array of any dtype (or their :meth:`inputs`)
-        -> positions ``(B, T_out, 2)`` float32, metres.
+        -> positions ``(B, T_out, 2)`` float32, metres; with ``progress``, a tqdm bar of the
+        sequences done on stderr.
 
         Bits go through in blocks of :data:`ROUTE_CHUNK` sequences, each block's :meth:`inputs`
         made and let go in turn: memory is a block's, whatever ``B`` (a grid-reading network's
@@ -663,11 +684,21 @@ class Estimator(nn.Module):
                     raise EstimationError("fingerprint sequences need at least one step, got 0")
             prepare = self.inputs if raw and self.uses_grid else (lambda block: block)
             n = _length(x)
-            if self.uses_grid:  # blocks side by side, one per thread (one block within a part's)
-                blocks = pieces(n, PREDICT_CHUNK, max(1, ROUTE_CHUNK // threads())) or [slice(0, 0)]
-                parts = map_parts(lambda b: self._predict_rows(prepare(_rows(x, b))), blocks)
-            else:
-                parts = [self._predict_rows(prepare(_rows(x, b))) for b in _blocks(n, ROUTE_CHUNK)]
+            bar = _progress_bar(n, progress)
+
+            def block(rows: slice) -> torch.Tensor:
+                out = self._predict_rows(prepare(_rows(x, rows)))
+                bar.update(out.shape[0])  # tqdm's update holds its own lock: threads may share it
+                return out
+
+            try:
+                if self.uses_grid:  # blocks side by side, one per thread (one block within a part's)
+                    blocks = pieces(n, PREDICT_CHUNK, max(1, ROUTE_CHUNK // threads())) or [slice(0, 0)]
+                    parts = map_parts(block, blocks)
+                else:
+                    parts = [block(b) for b in _blocks(n, ROUTE_CHUNK)]
+            finally:
+                bar.close()
             return torch.cat(parts) if len(parts) != 1 else parts[0]
         finally:
             self.train(was)

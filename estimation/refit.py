@@ -39,6 +39,7 @@ def refit_motion(
     data_info: dict[str, Any] | None = None,
     unlabelled_noise: float | None = None,
     seed: int = 0,
+    progress: bool = False,
 ) -> dict[str, Any]:
     """Write the run folder ``out``: the trained run ``run`` with its motion tables measured on
     the trajectories of ``data`` (:meth:`Estimator.fit_motion`), its network's weights kept.
@@ -68,6 +69,8 @@ def refit_motion(
         only make the fingerprints.
     seed : int
         Seed of that noise.
+    progress : bool
+        Show a bar of that tracking (tqdm, on stderr).
 
     Returns
     -------
@@ -98,7 +101,7 @@ def refit_motion(
         est.fit_motion(data)
     else:
         bits = noisy_bits(data, float(unlabelled_noise), torch.Generator().manual_seed(int(seed)))
-        est.attach(data, sigma=float(unlabelled_noise)).adapt_motion(bits)
+        est.attach(data, sigma=float(unlabelled_noise)).adapt_motion(bits, progress=progress)
         data_info |= {"unlabelled_noise": float(unlabelled_noise), "seed": int(seed)}
     motion = {**data_info, "trajectories": int(data.n), "seconds": round(time.perf_counter() - start, 3)}
     motion["from_run"] = str(run.resolve())

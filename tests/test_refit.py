@@ -212,7 +212,8 @@ def test_refit_cli_unlabelled(trained, tmp_path, capsys):
     run, _, _ = trained
     argv = ["refit", str(run), "--out", str(tmp_path / "u"), "--unlabelled", "--max-trajectories", "40"]
     assert main(argv) == 0
-    assert "adapted" in capsys.readouterr().out
+    shown = capsys.readouterr()
+    assert "adapted" in shown.out and "40/40" in shown.err  # the tracking's progress bar
     motion = json.loads((tmp_path / "u" / "run.json").read_text())["motion"]
     assert motion["unlabelled_noise"] == 6.0 and motion["trajectories"] == 40
     adapted, trained_net = Estimator.load(tmp_path / "u").net, Estimator.load(run).net
@@ -226,3 +227,31 @@ def test_refit_cli_unlabelled(trained, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and needle in err
     assert not (tmp_path / "v").exists()
+    assert (
+        main(
+            [
+                "refit",
+                str(run),
+                "--out",
+                str(tmp_path / "q"),
+                "--unlabelled",
+                "--max-trajectories",
+                "8",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    assert capsys.readouterr().err == ""
+
+
+def test_predict_shows_its_progress_when_asked(trained, capsys):
+    """A bar of the sequences done, on stderr, and the same positions as without it."""
+    run, _, va = trained
+    est = Estimator.load(run).attach(va)
+    bits = noisy_bits(va, 6.0, torch.Generator().manual_seed(3))
+    quiet = est.predict(bits)
+    assert capsys.readouterr().err == ""
+    shown = est.predict(bits, progress=True)
+    err = capsys.readouterr().err
+    assert torch.equal(quiet, shown) and f"{va.n}/{va.n}" in err and "predict" in err

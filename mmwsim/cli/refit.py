@@ -59,6 +59,7 @@ def register(sub) -> None:
         help="at most N trajectories of the split, a seeded subset (default 0 = all; --unlabelled tracks "
         "each, about 30 ms per 15-step trajectory)",
     )
+    p.add_argument("--quiet", action="store_true", help="no progress bar (--unlabelled's tracking)")
     p.set_defaults(func=_refit)
 
 
@@ -90,6 +91,7 @@ def _refit(args) -> int:
         {"dataset": data_info["dataset"], "content_hash": data_info["content_hash"], "split": args.split},
         unlabelled_noise=args.noise if args.unlabelled else None,
         seed=args.seed,
+        progress=not args.quiet,
     )
     if args.unlabelled:
         done = f"adapted {args.run} to its own tracks of {args.noise:g} dB fingerprints along"

@@ -7,6 +7,7 @@ trajectories are drawn once from a seeded generator, and every method and sequen
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -362,6 +363,11 @@ def evaluate(
     n_examples : int
         Trajectories per kind kept for the recording.
     seed : int
+    progress : bool
+        Show a bar of the runs (method, noise level, split) done on stderr where it is a
+        terminal (tqdm); ``log``'s lines are written above it.
+    log : callable
+        Takes each run's summary line.
     """
     if not all(math.isfinite(float(n)) and n >= 0 for n in noises):
         raise EstimationError(f"noise levels must be finite and >= 0 dB, got {list(noises)}")
@@ -378,44 +384,71 @@ def evaluate(
     names = [m.name for m in methods]
     if len(set(names)) != len(names):
         raise EstimationError(f"two methods share a name: {names}")
-    for si, (split, data) in enumerate(sets.items()):
-        if data.n == 0:
-            log(f"split {split}: no trajectories, skipped")
-            continue
-        data = _subsample(data, max_trajectories, seed)
-        tl = min(table_length, data.length)
-        lens = _tracking_lengths(data.length, lengths, tl)
-        ex_rows = np.concatenate([np.flatnonzero(data.kind == k)[:n_examples] for k in np.unique(data.kind)])
-        ev.examples[split] = {"true": data.positions[ex_rows], "kind": data.kind[ex_rows]}
-        for ni, sigma in enumerate(noises):
-            # The same noisy bits for every method: differences between methods are not noise.
-            bits = noisy_bits(data, sigma, torch.Generator().manual_seed(seed * 1_000_003 + si * 1009 + ni))
-            for m in methods:
-                t0 = time.perf_counter()
-                pm = m.for_sigma(sigma, validation)
-                fitted = getattr(m, "fitted", {})  # what a method fitted per noise level, if anything
-                if sigma in fitted:
-                    ev.fitted.setdefault(m.name, {})[str(sigma)] = fitted[sigma]
-                if pm.task == "tracking":
-                    secs = _evaluate_tracking(
-                        ev, pm, split, data, sigma, bits, lens, tl, ex_rows if ni == 0 else None
-                    )
-                else:
-                    secs = _evaluate_forecasting(ev, pm, split, data, sigma, bits)
-                if ni == 0 and si == 0:
-                    ev.cost[m.name] = {
-                        "parameters": m.n_parameters,
-                        "train_seconds": m.train_seconds,
-                        "epochs": m.epochs,
-                        "predict_seconds": secs * 1000 / data.n,
-                    }
-                r = ev.select(method=m.name, split=split, sigma=sigma, kind="all")
-                log(
-                    f"{split} {sigma:g} dB {m.name}: mean RMSE "
-                    + ", ".join(f"{x['length']}:{x['mean']:.2f}" for x in r if x["length"] in (tl, max(lens)))
-                    + f" m ({time.perf_counter() - t0:.1f} s)"
+    runs = sum(1 for d in sets.values() if d.n) * len(noises) * len(methods)
+    with _runs_bar(runs, progress, log) as (bar, log):
+        for si, (split, data) in enumerate(sets.items()):
+            if data.n == 0:
+                log(f"split {split}: no trajectories, skipped")
+                continue
+            data = _subsample(data, max_trajectories, seed)
+            tl = min(table_length, data.length)
+            lens = _tracking_lengths(data.length, lengths, tl)
+            ex_rows = np.concatenate(
+                [np.flatnonzero(data.kind == k)[:n_examples] for k in np.unique(data.kind)]
+            )
+            ev.examples[split] = {"true": data.positions[ex_rows], "kind": data.kind[ex_rows]}
+            for ni, sigma in enumerate(noises):
+                # The same noisy bits for every method: differences between methods are not noise.
+                bits = noisy_bits(
+                    data, sigma, torch.Generator().manual_seed(seed * 1_000_003 + si * 1009 + ni)
                 )
+                for m in methods:
+                    t0 = time.perf_counter()
+                    pm = m.for_sigma(sigma, validation)
+                    fitted = getattr(m, "fitted", {})  # what a method fitted per noise level, if anything
+                    if sigma in fitted:
+                        ev.fitted.setdefault(m.name, {})[str(sigma)] = fitted[sigma]
+                    if pm.task == "tracking":
+                        secs = _evaluate_tracking(
+                            ev, pm, split, data, sigma, bits, lens, tl, ex_rows if ni == 0 else None
+                        )
+                    else:
+                        secs = _evaluate_forecasting(ev, pm, split, data, sigma, bits)
+                    if ni == 0 and si == 0:
+                        ev.cost[m.name] = {
+                            "parameters": m.n_parameters,
+                            "train_seconds": m.train_seconds,
+                            "epochs": m.epochs,
+                            "predict_seconds": secs * 1000 / data.n,
+                        }
+                    r = ev.select(method=m.name, split=split, sigma=sigma, kind="all")
+                    log(
+                        f"{split} {sigma:g} dB {m.name}: mean RMSE "
+                        + ", ".join(
+                            f"{x['length']}:{x['mean']:.2f}" for x in r if x["length"] in (tl, max(lens))
+                        )
+                        + f" m ({time.perf_counter() - t0:.1f} s)"
+                    )
+                    bar.update(1)
     return ev
+
+
+@contextlib.contextmanager
+def _runs_bar(total: int, show: bool, log):
+    """A tqdm bar of ``total`` runs where ``show`` and stderr is a terminal, and ``log`` writing
+    above it; with neither, a bar that shows nothing and ``log`` itself."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc="evaluate", unit="run", leave=False, disable=None if show else True)
+
+    def above(line: str) -> None:
+        with tqdm.external_write_mode():
+            log(line)
+
+    try:
+        yield bar, (log if bar.disable else above)
+    finally:
+        bar.close()
 
 
 def _subsample(data: SequenceSet, max_trajectories: int | None, seed: int) -> SequenceSet:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -167,6 +169,30 @@ def test_evaluation_bookkeeping_with_known_errors():
     kinds = {r["kind"] for r in ev.rows}
     assert "all" in kinds and kinds - {"all"} <= set(KINDS)
     assert ev.examples["test"]["off5"].shape[1:] == (5, 2)
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_evaluation_shows_a_bar_of_its_runs_on_a_terminal(monkeypatch):
+    """One step per method, noise level and split, the runs' lines still logged; none with
+    ``progress=False`` or where stderr is not a terminal."""
+    from estimation import evaluate
+    from estimation.synthetic import toy_sequence_set
+
+    d = toy_sequence_set(12, 4, nx=16, ny=16, n_beams=4, n_bins=8, seed=4)
+    methods = [_Offset(d, [0.0, 0.0], "oracle"), _Offset(d, [3.0, 4.0], "off5")]
+    for progress, terminal, shown in ((True, True, True), (False, True, False), (True, False, False)):
+        err = _Terminal() if terminal else io.StringIO()
+        monkeypatch.setattr(sys, "stderr", err)
+        lines: list[str] = []
+        evaluate(
+            methods, {"a": d, "b": d}, [6.0, 9.0], None, table_length=4, progress=progress, log=lines.append
+        )
+        assert len(lines) == 8  # 2 methods x 2 noise levels x 2 splits
+        assert ("evaluate:" in err.getvalue() and "/8 [" in err.getvalue()) == shown
 
 
 def test_matcher_likelihood_is_exact_far_in_the_tails():

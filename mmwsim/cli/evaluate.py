@@ -80,6 +80,7 @@ def register(sub) -> None:
     p.add_argument("--rrd", help="write predicted vs true trajectories to this .rrd")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation noise (default 0)")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal)")
     p.set_defaults(func=_evaluate)
 
 
@@ -150,6 +151,7 @@ def _run(args, out) -> int:
         table_length=args.table_length,
         max_trajectories=args.max_trajectories or None,
         seed=args.seed,
+        progress=not args.quiet,
     )
     written = write_report(ev, out, list(args.noise))
     if args.rrd:

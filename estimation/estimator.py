@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -87,25 +88,6 @@ def _length(x: Any) -> int:
 def _blocks(n: int, size: int) -> list[slice]:
     """``range(n)`` in slices of ``size`` (one empty slice for none)."""
     return [slice(a, a + size) for a in range(0, max(n, 1), size)]
-
-
-class _NoBar:
-    """What :func:`_progress_bar` gives without a bar: updates that show nothing."""
-
-    def update(self, n: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def _progress_bar(n: int, show: bool) -> Any:
-    """A tqdm bar of ``n`` sequences to predict where ``show``, else one that shows nothing."""
-    if not show:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=n, desc="predict", unit="seq", dynamic_ncols=True)
 
 
 def _rows(x: Any, rows: slice) -> Any:
@@ -684,11 +666,15 @@ class Estimator(nn.Module):
                     raise EstimationError("fingerprint sequences need at least one step, got 0")
             prepare = self.inputs if raw and self.uses_grid else (lambda block: block)
             n = _length(x)
-            bar = _progress_bar(n, progress)
+            from tqdm import tqdm
+
+            bar = tqdm(total=n, desc="predict", unit="seq", dynamic_ncols=True, disable=not progress)
+            done = threading.Lock()  # the blocks' threads share the bar
 
             def block(rows: slice) -> torch.Tensor:
                 out = self._predict_rows(prepare(_rows(x, rows)))
-                bar.update(out.shape[0])  # tqdm's update holds its own lock: threads may share it
+                with done:
+                    bar.update(out.shape[0])
                 return out
 
             try:

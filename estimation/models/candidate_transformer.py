@@ -103,6 +103,13 @@ def _place_frames(grid_xy: np.ndarray) -> tuple[np.ndarray, float, tuple, tuple]
     return lo, spacing, cell, fine
 
 
+def _table_pair(u: np.ndarray, lo: np.ndarray, spacing: float) -> tuple[MotionTable, MotionTable]:
+    """Both smoothers' tables, no place table, measured on trajectories ``u (n, L >= 3, 2)`` in
+    grid units from the first grid point ``lo (2,)`` metres of a grid of ``spacing`` metres: the
+    cell table on their nearest grid points, the sub-cell table on the lattice."""
+    return MotionTable().fit(lo + np.rint(u) * spacing), MotionTable.lattice().fit(snap_to_lattice(u))
+
+
 class CandidateTransformer(nn.Module):
     """Candidates of every step in, positions ``(B, T, 2)`` in metres out (forecasting: the
     ``(B, horizon, 2)`` positions after the last step).
@@ -262,8 +269,7 @@ class CandidateTransformer(nn.Module):
             return self
         lo, spacing, _, _ = _place_frames(np.asarray(grid_xy, dtype=np.float64))
         u = speed_scaled((p[walkers] - lo) / spacing, copies=WALK_COPIES, ranges=WALK_SCALES)
-        self.motion_walk.fit(lo + np.rint(u) * spacing)
-        self.motion_walk_fine.fit(snap_to_lattice(u))
+        self.motion_walk, self.motion_walk_fine = _table_pair(u, lo, spacing)
         return self
 
     def fit_adapted(self, tracks: np.ndarray, grid_xy: np.ndarray) -> CandidateTransformer:
@@ -277,9 +283,7 @@ class CandidateTransformer(nn.Module):
         if p.ndim != 3 or p.shape[1] < 3 or p.shape[2] != 2 or not np.isfinite(p).all():
             raise ValueError(f"tracks must be finite (n, L >= 3, 2) metres, got shape {p.shape}")
         lo, spacing, _, _ = _place_frames(np.asarray(grid_xy, dtype=np.float64))
-        self.motion_adapted, self.motion_adapted_fine = MotionTable(), MotionTable.lattice()
-        self.motion_adapted.fit(lo + np.rint((p - lo) / spacing) * spacing)
-        self.motion_adapted_fine.fit(snap_to_lattice((p - lo) / spacing))
+        self.motion_adapted, self.motion_adapted_fine = _table_pair((p - lo) / spacing, lo, spacing)
         return self
 
     def lane_tables(

@@ -418,9 +418,10 @@ class Estimator(nn.Module):
         its adapted tables (:meth:`CandidateTransformer.fit_adapted`) on its own tracks
         (:meth:`predict`) of their unlabelled fingerprint sequences ``bits (n, L >= 3, M, N_s)``
         of 0/1 from the attached grid. The filter weighs them as one more hypothesis at
-        :data:`~estimation.smoothing.online.ADAPTED_PRIOR`, beside the measured tables, which
-        stay as they are, as do the network's weights: users who move as the training users did
-        keep the measured tables by their evidence. ``progress`` shows a bar of the tracking
+        :data:`~estimation.smoothing.online.ADAPTED_PRIOR`, taken from the other hypotheses'
+        priors in proportion, beside the measured tables, which stay as they are, as do the
+        network's weights: users who move as the training users did keep the measured tables by
+        their evidence. ``progress`` shows a bar of the tracking
         (about 30 ms per 15-step sequence). Returns ``self``."""
         if not self.uses_grid:
             raise EstimationError(
@@ -520,10 +521,11 @@ class Estimator(nn.Module):
         copies, the tables for steady users at other speeds (:meth:`_steady_motion`) and those of
         one kind alone (:meth:`_kind_motion`) where the model has them, sharing
         :data:`~estimation.smoothing.online.ALTERNATIVE_PRIOR`, and the walkers' tables at other
-        speeds and the adapted tables (:meth:`adapt_motion`) where it has them, at
-        :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR` and
-        :data:`~estimation.smoothing.online.ADAPTED_PRIOR`; their prior (one probability shared
-        evenly where neither of the last two is there, else one per alternative); the indices
+        speeds where it has them, at :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR`,
+        and the adapted tables (:meth:`adapt_motion`) where it has them, at
+        :data:`~estimation.smoothing.online.ADAPTED_PRIOR` taken from every other model's prior
+        (the measured tables' too) in proportion; their prior (one probability shared evenly
+        where neither of the last two is there, else one per alternative); the indices
         of those the filter tells from the measured tables by their sub-cell evidence
         (``CandidateFilter(fine_weighed=...)``); and those of the tables measured at speeds the
         training users did not keep or on estimates, whose paths the acceleration memory does
@@ -534,21 +536,23 @@ class Estimator(nn.Module):
         alts = [self._broadened_motion(), *([] if steady is None else [steady]), *kind]
         fine_weighed = (1,) if steady is not None and self._scaled_fine() else ()
         skips = (1,) if steady is not None else ()
-        # each at a prior of its own; the memory, measured at the training speeds, weighs neither
-        extra = [
-            (tables, prior)
-            for tables, prior in (
-                ((net.motion_walk, net.motion_walk_fine), WALKER_SPEED_PRIOR),
-                ((net.motion_adapted, net.motion_adapted_fine), ADAPTED_PRIOR),
-            )
-            if bool(tables[0].fitted)
-        ]
-        if not extra:
+        walk = (net.motion_walk, net.motion_walk_fine)
+        adapted = (net.motion_adapted, net.motion_adapted_fine)
+        if not (bool(walk[0].fitted) or bool(adapted[0].fitted)):
             return alts, ALTERNATIVE_PRIOR, fine_weighed, skips
-        priors = (ALTERNATIVE_PRIOR / len(alts),) * len(alts) + tuple(prior for _, prior in extra)
-        skips += tuple(range(len(alts), len(alts) + len(extra)))
-        alts += [tables for tables, _ in extra]
-        return alts, priors, fine_weighed, skips
+        priors = [ALTERNATIVE_PRIOR / len(alts)] * len(alts)
+        # each at a prior of its own; the memory, measured at the training speeds, weighs neither
+        if bool(walk[0].fitted):
+            skips += (len(alts),)
+            alts.append(walk)
+            priors.append(WALKER_SPEED_PRIOR)
+        if bool(adapted[0].fitted):
+            # In proportion, not from the measured tables alone: those keep their odds against
+            # the others, or blurred tables take the ambiguous steps of users they fit exactly.
+            priors = [p * (1.0 - ADAPTED_PRIOR) for p in priors] + [ADAPTED_PRIOR]
+            skips += (len(alts),)
+            alts.append(adapted)
+        return alts, tuple(priors), fine_weighed, skips
 
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:
         """The tables measured on the training users of one kind alone

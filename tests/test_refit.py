@@ -195,6 +195,11 @@ def test_adapt_motion_learns_from_fingerprints_alone(trained, tmp_path):
     alts, priors, _, skips = est._alternative_motion()
     assert alts[-1] == (net.motion_adapted, net.motion_adapted_fine)
     assert priors[-1] == ADAPTED_PRIOR and len(alts) - 1 in skips
+    # taken from every other model's prior in proportion: the measured tables' odds are kept
+    _, plain, _, _ = Estimator.load(run).attach(pool)._alternative_motion()
+    plain = np.broadcast_to(np.asarray(plain) / (1 if np.ndim(plain) else len(alts) - 1), (len(alts) - 1,))
+    assert np.allclose(priors[:-1], (1 - ADAPTED_PRIOR) * plain)
+    assert np.isclose(1 - sum(priors), (1 - ADAPTED_PRIOR) * (1 - plain.sum()))
     est.save(tmp_path / "model.pt")
     assert _tracked(tmp_path / "model.pt", others) < 0.98 * _tracked(run, others)
     assert _tracked(tmp_path / "model.pt", va) < 1.01 * _tracked(run, va)

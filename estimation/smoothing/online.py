@@ -98,10 +98,13 @@ ALTERNATIVE_PRIOR = 0.5
 # better and ours 0.4 to 0.8 % worse (docs/estimation.md).
 WALKER_SPEED_PRIOR = 0.06
 # Prior of the tables measured on the network's own tracks of a population's unlabelled
-# fingerprints (Estimator.adapt_motion), beside the alternatives'. Replacing the measured tables
+# fingerprints (Estimator.adapt_motion), taken from every other hypothesis in proportion, so that
+# the measured tables keep their odds against the alternatives. Replacing the measured tables
 # instead costs our own vehicles 4.8x (0.09 to 0.42 m: tables measured on estimates blur their
-# exact lattice patterns); as a hypothesis at 0.2 or 0.4 they keep 0.09 m while the foreign sets
-# of benchmarks/foreign_motion.py gain nearly as much (0.4 the more; docs/estimation.md).
+# exact lattice patterns). Taken from the measured tables' prior alone, 0.4 left them 0.04 and cost
+# the 2 m demo model's own vehicles 0.16 -> 0.18 m (steady drivers whose ambiguous steps the
+# blurred tables took over); taken in proportion they stay at 0.16 m, and the 1 m model's foreign
+# sets of benchmarks/foreign_motion.py keep the gain within 0.6 % (docs/estimation.md).
 ADAPTED_PRIOR = 0.4
 # A step whose candidates' log-likelihoods span less than this says little about where the user
 # is. The matcher's guided search looks near the track where its k most likely points lie within

@@ -513,7 +513,7 @@ class Estimator(nn.Module):
         self,
     ) -> tuple[
         list[tuple[MotionTable, MotionTable | None]],
-        float | tuple[float, ...],
+        tuple[float, ...],
         tuple[int, ...],
         tuple[int, ...],
     ]:
@@ -524,8 +524,7 @@ class Estimator(nn.Module):
         speeds where it has them, at :data:`~estimation.smoothing.online.WALKER_SPEED_PRIOR`,
         and the adapted tables (:meth:`adapt_motion`) where it has them, at
         :data:`~estimation.smoothing.online.ADAPTED_PRIOR` taken from every other model's prior
-        (the measured tables' too) in proportion; their prior (one probability shared evenly
-        where neither of the last two is there, else one per alternative); the indices
+        (the measured tables' too) in proportion; their priors, one per alternative; the indices
         of those the filter tells from the measured tables by their sub-cell evidence
         (``CandidateFilter(fine_weighed=...)``); and those of the tables measured at speeds the
         training users did not keep or on estimates, whose paths the acceleration memory does
@@ -536,22 +535,18 @@ class Estimator(nn.Module):
         alts = [self._broadened_motion(), *([] if steady is None else [steady]), *kind]
         fine_weighed = (1,) if steady is not None and self._scaled_fine() else ()
         skips = (1,) if steady is not None else ()
-        walk = (net.motion_walk, net.motion_walk_fine)
-        adapted = (net.motion_adapted, net.motion_adapted_fine)
-        if not (bool(walk[0].fitted) or bool(adapted[0].fitted)):
-            return alts, ALTERNATIVE_PRIOR, fine_weighed, skips
         priors = [ALTERNATIVE_PRIOR / len(alts)] * len(alts)
         # each at a prior of its own; the memory, measured at the training speeds, weighs neither
-        if bool(walk[0].fitted):
+        if bool(net.motion_walk.fitted):
             skips += (len(alts),)
-            alts.append(walk)
+            alts.append((net.motion_walk, net.motion_walk_fine))
             priors.append(WALKER_SPEED_PRIOR)
-        if bool(adapted[0].fitted):
+        if bool(net.motion_adapted.fitted):
             # In proportion, not from the measured tables alone: those keep their odds against
             # the others, or blurred tables take the ambiguous steps of users they fit exactly.
             priors = [p * (1.0 - ADAPTED_PRIOR) for p in priors] + [ADAPTED_PRIOR]
             skips += (len(alts),)
-            alts.append(adapted)
+            alts.append((net.motion_adapted, net.motion_adapted_fine))
         return alts, tuple(priors), fine_weighed, skips
 
     def _kind_motion(self) -> tuple[MotionTable, MotionTable | None]:

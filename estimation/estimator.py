@@ -31,7 +31,14 @@ from .noise import check_bits
 from .smoothing.forecast import extrapolate, forecast_tracks
 from .smoothing.hmm import LOGP_FLOOR
 from .smoothing.line import LINE_MIN_STEPS, line_weight
-from .smoothing.motion import PLACE_SPEED, POOLED_SPEED, MixtureMotion, MotionTable
+from .smoothing.motion import (
+    BROADENED_BLOCKED,
+    BROADENED_OPEN,
+    PLACE_SPEED,
+    POOLED_SPEED,
+    MixtureMotion,
+    MotionTable,
+)
 from .smoothing.online import (
     ADAPTED_PRIOR,
     ALTERNATIVE_PRIOR,
@@ -302,7 +309,8 @@ class Estimator(nn.Module):
         self.route_tracking = True
         self.line_tracking = True
         self._streets: tuple[np.ndarray, np.ndarray] | None = None  # (centre lines, grid points)
-        self._broadened: tuple[tuple, tuple] | None = None  # (tables' stamp, their broadened copies)
+        # (tables' stamp, the free space they read, their broadened copies)
+        self._broadened: tuple[tuple, Any, tuple] | None = None
         self._steady: tuple[tuple, tuple | None] | None = None  # (stamp, _steady_motion's tables)
         self._lanes: tuple[tuple, tuple] | None = None  # (tables' and map's stamp, lane copies)
         self._street_net: tuple[tuple, StreetNetwork | None] | None = None  # (map's stamp, graph)
@@ -582,15 +590,33 @@ class Estimator(nn.Module):
         return self._steady[1]
 
     def _broadened_motion(self) -> tuple[MotionTable, MotionTable | None]:
-        """The motion tables' broadened copies, made again only when the tables change (a
-        filter is made per batch in training and evaluation)."""
-        net = self.net
+        """The motion tables' broadened copies, made again only when the tables or the attached
+        grid change (a filter is made per batch in training and evaluation). With a grid
+        attached they read its free space (:meth:`MotionTable.with_walls`): a turn is likely
+        where the way straight ahead is blocked (:data:`BROADENED_BLOCKED`) and seldom elsewhere
+        (:data:`BROADENED_OPEN`)."""
         key = self._tables_stamp()
-        if self._broadened is None or not same_stamp(self._broadened[0], key):
-            step = float(net.grid_step)
-            fine = net.motion_fine.broadened(unit=step) if bool(net.motion_fine.fitted) else None
-            self._broadened = (key, (net.motion.broadened(), fine))
-        return self._broadened[1]
+        walls = None if self.matcher is None else self._free_space()
+        kept = self._broadened
+        if kept is None or not same_stamp(kept[0], key) or kept[1] is not walls:
+            self._broadened = (key, walls, self._broaden(walls))
+        return self._broadened[2]
+
+    def _broaden(self, walls: FreeRaster | None) -> tuple[MotionTable, MotionTable | None]:
+        """The broadened copies of :meth:`_broadened_motion`, read against the free space
+        ``walls`` (metres; the lattice's table in grid units) where it is given."""
+        net, step = self.net, float(self.net.grid_step)
+        fitted = bool(net.motion_fine.fitted)
+        if walls is None:
+            return net.motion.broadened(), (net.motion_fine.broadened(unit=step) if fitted else None)
+        free, origin, res = walls
+        turn, steer = BROADENED_OPEN
+        cell = net.motion.broadened(turn=turn, steer=steer, blocked=BROADENED_BLOCKED)
+        cell.with_walls(free, origin, res)
+        if not fitted:
+            return cell, None
+        fine = net.motion_fine.broadened(unit=step, turn=turn, steer=steer, blocked=BROADENED_BLOCKED)
+        return cell, fine.with_walls(free, origin / step, res / step)
 
     def inputs(
         self,

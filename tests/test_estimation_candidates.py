@@ -192,6 +192,21 @@ def test_broadened_table_mixes_turns_and_steering_noise_into_the_measured_one():
     assert float(only.log_accel_table[b, 32, 32]) == pytest.approx(expected, abs=1e-5)
     with pytest.raises(ValueError, match="weights"):
         table.broadened(turn=0.6, steer=0.6)
+    # with walls: a second set of classes, for the steps whose way straight ahead is blocked
+    walled = table.broadened(turn=0.1, steer=0.8, blocked=(0.9, 0.05))
+    n = len(table.log_accel_table)
+    assert walled.wall_classes == n and len(walled.log_accel_table) == 2 * n
+    assert torch.equal(walled.log_accel_table[:n], table.broadened(turn=0.1, steer=0.8).log_accel_table)
+    assert torch.equal(walled.log_accel_table[n:], table.broadened(turn=0.9, steer=0.05).log_accel_table)
+    assert walled.walls is None and table.wall_classes == 0
+    with pytest.raises(ValueError, match="wall classes already"):
+        walled.broadened()
+    with pytest.raises(ValueError, match="no wall classes"):
+        table.with_walls(np.ones((2, 2), bool), (0.0, 0.0), 1.0)
+    with pytest.raises(ValueError, match="weights"):
+        table.broadened(blocked=(0.9, 0.2))
+    with pytest.raises(ValueError, match="origin"):
+        walled.with_walls(np.ones((2, 2), bool), (0.0, np.nan), 1.0)
 
 
 def test_speed_pooled_table_mixes_the_fast_bands_by_their_samples():
@@ -658,6 +673,15 @@ def test_tn_match_trains_and_beats_the_per_step_match(tmp_path):
     # the broadened copies are made once per set of tables, not once per filter
     broad = est._broadened_motion()
     assert est._broadened_motion() is broad
+    # read against the attached grid's free space: the cell table in metres, the lattice's in
+    # grid units
+    free, origin, res = est._free_space()
+    step = float(est.net.grid_step)
+    for table, unit in zip(broad, (1.0, step), strict=True):
+        assert table.wall_classes == len(table.log_accel_table) // 2 > 0
+        np.testing.assert_array_equal(table.walls[0], free)
+        np.testing.assert_allclose(table.walls[1], origin / unit)
+        assert table.walls[2] == pytest.approx(res / unit)
     est.net.motion_fine.log_step_table[0] += 1.0
     assert est._broadened_motion() is not broad
     est.net.motion_fine.log_step_table[0] -= 1.0

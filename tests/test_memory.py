@@ -112,14 +112,14 @@ def test_paths_drawn_from_an_unpruned_beam_follow_the_smoothed_marginals():
     n = 20000
     idx = sample_paths(
         f.cells.points(5), f.cells.likelihoods(5), pi, ci, la, 5, n, 3, m.speed_edges, m.headings,
-        m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+        m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob, m.walls,
     )  # fmt: skip
     freq = np.stack([np.bincount(idx[b, :, t], minlength=6) for b in range(2) for t in range(5)]) / n
     np.testing.assert_allclose(freq, smoothed.reshape(10, 6), atol=0.015)
     # a shorter prefix draws from its own posterior, the steps after it unseen
     short = sample_paths(
         f.cells.points(3), f.cells.likelihoods(3), pi, ci, la, 3, n, 3, m.speed_edges, m.headings,
-        m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+        m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob, m.walls,
     )  # fmt: skip
     three = np.exp(f.cells.smooth([3])[0])
     freq = np.stack([np.bincount(short[b, :, t], minlength=6) for b in range(2) for t in range(3)]) / n

@@ -147,6 +147,7 @@ def test_a_forward_step_keeps_the_pairs_and_messages_a_log_domain_step_keeps(mot
         m.place,
         m.accel_prob,
         m.accel_max,
+        m.walls,
     )
     for b, (rpi, rci, rla) in enumerate(_forward_reference(*args, M, motion)):
         n = len(rla)
@@ -516,6 +517,45 @@ def _turning_tracks(n, length, seed):
     heading = rng.uniform(0, 2 * np.pi, (n, length - 1))
     steps = 6.0 * np.stack([np.cos(heading), np.sin(heading)], -1)
     return np.concatenate([np.zeros((n, 1, 2)), np.cumsum(steps, 1)], 1)
+
+
+def _beam_run(motion, xy, lp, beam=60):
+    """A beam of ``motion`` over the steps of ``xy (B, T, K, 2)``, ``lp (B, T, K)``."""
+    from estimation.smoothing.online import _Beam
+
+    b = _Beam(motion, beam)
+    for t in range(xy.shape[1]):
+        b.update(np.ascontiguousarray(xy[:, t]), np.ascontiguousarray(lp[:, t]))
+    return b
+
+
+def test_walls_read_the_blocked_classes_where_the_way_ahead_is_blocked():
+    """A table with wall classes reads its second set where the way straight ahead is blocked
+    (the step's end or its middle), in the forward pass and in the smoother alike."""
+    steer = MOTION.broadened(turn=0.0, steer=1.0)
+    turn = MOTION.broadened(turn=1.0, steer=0.0)
+    walled = MOTION.broadened(turn=0.0, steer=1.0, blocked=(1.0, 0.0))
+    # one candidate a step: east at 4 per step, then a quarter turn north
+    path = np.array([[[[0.0, 0.0]], [[4.0, 0.0]], [[4.0, 4.0]]]])
+    lp = np.zeros((1, 3, 1))
+    free = np.ones((60, 60), bool)  # points -20 .. 39 each way
+    evidence = {name: _beam_run(m, path, lp).evidence[-1] for name, m in (("steer", steer), ("turn", turn))}
+    assert float(evidence["turn"][0] - evidence["steer"][0]) > 3.0  # the densities differ there
+    for wall, reads in (((28, 20), "turn"), ((26, 20), "turn"), ((30, 20), "steer"), (None, "steer")):
+        f = free.copy()
+        if wall is not None:
+            f[wall] = False  # (8, 0): the end straight ahead; (6, 0): its middle; (10, 0): past it
+        walled.with_walls(f, (-20.0, -20.0), 1.0)
+        np.testing.assert_allclose(_beam_run(walled, path, lp).evidence[-1], evidence[reads], rtol=1e-12)
+    # many candidates, every point free or every point blocked: the filter and smoother of the
+    # steering or of the turning classes, to the last digit
+    xy, score = _candidates(B=4, T=6, S=10, seed=3)
+    xy, score = xy.double().numpy(), torch.log_softmax(score.double(), -1).numpy()
+    for value, same in ((True, steer), (False, turn)):
+        walled.with_walls(np.full((300, 300), value), (-150.0, -150.0), 1.0)
+        got, want = _beam_run(walled, xy, score), _beam_run(same, xy, score)
+        np.testing.assert_array_equal(got.evidence[-1], want.evidence[-1])
+        np.testing.assert_array_equal(got.smooth([6])[0], want.smooth([6])[0])
 
 
 def test_the_evidence_picks_the_motion_a_user_follows():

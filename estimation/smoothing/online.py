@@ -186,7 +186,7 @@ class _Beam:
             *pairs, marg = batch_map(
                 pair_forward, 7, self.xy.step(-2), self.xy.step(-1), xy, *(p.step(-1) for p in self._pairs), lp,
                 self.beam, m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
-                m.accel_max,
+                m.accel_max, m.walls,
             )  # fmt: skip
         self.xy.append(xy)
         self.lp.append(lp)
@@ -217,7 +217,7 @@ class _Beam:
             arrays = [a[rows] for a in arrays]
         return batch_map(
             sample_paths, 5, *arrays, T, n, seed, m.speed_edges, m.headings, m.heading_slopes,
-            m.accel_table, m.bin, m.reach, m.place, m.accel_prob,
+            m.accel_table, m.bin, m.reach, m.place, m.accel_prob, m.walls,
         )  # fmt: skip
 
     def smooth(self, lengths: list[int]) -> list[np.ndarray]:
@@ -243,7 +243,7 @@ class _Beam:
             rows, paths = batch_map(
                 beam_smooth, 6, self.points(T_max), self.likelihoods(T_max), pi, ci, la, pick, each, int(n),
                 int(seed), m.speed_edges, m.headings, m.heading_slopes, m.accel_table, m.bin, m.reach, m.place,
-                m.accel_prob, m.accel_max - m.accel_min,
+                m.accel_prob, m.accel_max - m.accel_min, m.walls,
             )  # fmt: skip
             parts = iter(np.split(rows, np.cumsum(each)[:-1], axis=1))
             out = [next(parts) if o is None else o for o in out]

@@ -241,7 +241,7 @@ def _blocked(x, y, walls):
 
 @njit(cache=True, inline="always")
 def _wall_class(cls, x, y, vx, vy, walls):
-    # MotionArrays.walls: after displacement v to x, the class of the table's wall classes where
+    # MotionArrays.walls: after displacement v to x, the class among the wall classes where
     # the way straight ahead (its end or its middle) is blocked
     if walls[0] == 0:
         return cls

@@ -547,6 +547,10 @@ def test_walls_read_the_blocked_classes_where_the_way_ahead_is_blocked():
             f[wall] = False  # (8, 0): the end straight ahead; (6, 0): its middle; (10, 0): past it
         walled.with_walls(f, (-20.0, -20.0), 1.0)
         np.testing.assert_allclose(_beam_run(walled, path, lp).evidence[-1], evidence[reads], rtol=1e-12)
+    # walls or none, the kernels see one type: compiled once for both
+    from numba import typeof
+
+    assert typeof(motion_arrays(walled).walls) == typeof(motion_arrays(MOTION).walls)
     # many candidates, every point free or every point blocked: the filter and smoother of the
     # steering or of the turning classes, to the last digit
     xy, score = _candidates(B=4, T=6, S=10, seed=3)
